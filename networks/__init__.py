@@ -1,0 +1,1 @@
+"""Embedded networks shipped with urb-jax (installed as the package urb_jax.networks)."""

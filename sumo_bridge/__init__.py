@@ -1,0 +1,1 @@
+"""sumo_bridge"""

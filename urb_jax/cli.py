@@ -1,0 +1,41 @@
+"""`urb-jax` entry point: subcommands live in urb_jax/commands/."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from urb_jax import __version__
+from urb_jax.commands import COMMANDS
+from urb_jax.errors import UrbJaxError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="urb-jax",
+        description="JAX surrogate-plus-SUMO trainer for the Urban Routing Benchmark.",
+    )
+    parser.add_argument("--version", action="version", version=f"urb-jax {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name in COMMANDS:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except UrbJaxError as exc:
+        print(f"urb-jax: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

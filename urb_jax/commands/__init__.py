@@ -1,0 +1,9 @@
+"""One module per `urb-jax` subcommand; each exposes `register(subparsers)`.
+
+To add a command, write a module here with `register` and list it in `COMMANDS`.
+"""
+
+COMMANDS = [
+    "urb_jax.commands.networks",
+    "urb_jax.commands.scenario",
+]

@@ -1,0 +1,22 @@
+"""Flags shared by several subcommands, so they read the same everywhere."""
+
+from __future__ import annotations
+
+import argparse
+
+from urb_jax.network import DEFAULT_NETWORK
+from urb_jax.paths import NETWORKS_ENV
+
+
+def add_network_flags(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--net", default=DEFAULT_NETWORK,
+                        help=f"network name or folder (default: the embedded '{DEFAULT_NETWORK}')")
+    add_networks_dir(parser)
+    parser.add_argument("--env-seed", type=int, default=42,
+                        help="seeds routes, humans, mutation and SUMO (default 42)")
+
+
+def add_networks_dir(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--networks-dir", default=None,
+                        help=f"folder of URB networks (searched before ${NETWORKS_ENV} "
+                             "and the embedded networks)")

@@ -1,0 +1,31 @@
+"""URB's routes.csv, so route sets can be compared with a URB run line by line."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pandas as pd
+
+from urb_jax.scenario import Scenario
+
+
+def routes_table(scn: Scenario) -> pd.DataFrame:
+    """One row per (OD, k) sorted by (origin, destination) then k, as URB writes it."""
+    rows = []
+    for od in range(scn.n_od):
+        for k in range(scn.k):
+            rows.append({
+                "origins": int(scn.od_origin[od]),
+                "destinations": int(scn.od_destination[od]),
+                "path": " ".join(scn.route_edge_ids(od, k)),
+                "free_flow_time": float(scn.od_fft[od, k]),
+            })
+    return pd.DataFrame(rows)
+
+
+def write_routes_csv(scn: Scenario, path: str | os.PathLike) -> None:
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    routes_table(scn).to_csv(tmp, index=False)
+    os.replace(tmp, path)

@@ -1,0 +1,301 @@
+"""The Scenario: one immutable set of arrays per (network, route parameters, env seed).
+
+Every layer reads it: the surrogate, SUMO days, the environment and the metrics all index the
+same route arrays, so the routes the surrogate prices are the routes SUMO drives.
+
+Agent order: agents are sorted by departure second (stable, ties by agents.csv row order);
+`agent_id[i]` maps position i back to the URB id. Choices are route indices k in [0, K) per agent
+in this order.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from urb_jax import __version__
+from urb_jax.errors import NetworkError, RouteError
+from urb_jax.network import DEFAULT_NETWORK, NetworkFiles, find_network, read_demand
+from urb_jax.netxml import read_net
+from urb_jax.paths import cache_dir
+from urb_jax.routes import (
+    ODRoutes,
+    RouteParams,
+    build_route_graph,
+    free_flow_times,
+    generate_routes,
+)
+
+log = logging.getLogger(__name__)
+CACHE_FORMAT = 1
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """Arrays describing one URB scenario; N agents, E edges, O OD pairs, K routes, L max edges."""
+
+    name: str
+    net_file: str
+    env_seed: int
+    route_params: RouteParams
+    # edges [E]
+    edge_ids: tuple[str, ...]
+    edge_length: np.ndarray  # m
+    edge_speed: np.ndarray  # m/s (speed limit)
+    edge_lanes: np.ndarray
+    edge_priority: np.ndarray
+    edge_type: tuple[str, ...]
+    edge_capacity: np.ndarray  # veh/h, see netxml.capacity_per_lane
+    # OD pairs [O]
+    od_origin: np.ndarray  # index into origins of the od file
+    od_destination: np.ndarray
+    od_origin_edge: tuple[str, ...]
+    od_destination_edge: tuple[str, ...]
+    # routes [O, K, L] edge indices, -1 padded
+    od_routes: np.ndarray
+    od_route_len: np.ndarray  # [O, K] edges per route
+    od_route_valid: np.ndarray  # [O, K] False for padding repeats (fewer than K distinct routes)
+    od_fft: np.ndarray  # [O, K] URB free-flow time (destination edge excluded), minutes
+    od_fft_full: np.ndarray  # [O, K] free-flow time over every edge, minutes
+    od_route_length: np.ndarray  # [O, K] metres, every edge
+    # agents [N], sorted by departure
+    agent_id: np.ndarray
+    agent_od: np.ndarray  # index into OD arrays
+    agent_origin: np.ndarray
+    agent_destination: np.ndarray
+    agent_depart: np.ndarray  # int seconds
+    agent_kind: tuple[str, ...]  # 'Human' or 'AV' as given in agents.csv
+
+    @property
+    def n_agents(self) -> int:
+        return int(self.agent_id.shape[0])
+
+    @property
+    def n_edges(self) -> int:
+        return len(self.edge_ids)
+
+    @property
+    def n_od(self) -> int:
+        return int(self.od_origin.shape[0])
+
+    @property
+    def k(self) -> int:
+        return int(self.od_routes.shape[1])
+
+    @property
+    def simulation_timesteps(self) -> int:
+        """URB's `simulation_timesteps`: the latest departure second."""
+        return int(self.agent_depart.max())
+
+    # Per-agent views (gathered from the OD arrays).
+    @property
+    def routes(self) -> np.ndarray:
+        """[N, K, L] edge indices of each agent's K routes."""
+        return self.od_routes[self.agent_od]
+
+    @property
+    def route_len(self) -> np.ndarray:
+        return self.od_route_len[self.agent_od]
+
+    @property
+    def route_valid(self) -> np.ndarray:
+        return self.od_route_valid[self.agent_od]
+
+    @property
+    def fft(self) -> np.ndarray:
+        """[N, K] URB free-flow times, minutes."""
+        return self.od_fft[self.agent_od]
+
+    @property
+    def fft_full(self) -> np.ndarray:
+        return self.od_fft_full[self.agent_od]
+
+    def route_edge_ids(self, od: int, k: int) -> list[str]:
+        n = int(self.od_route_len[od, k])
+        return [self.edge_ids[e] for e in self.od_routes[od, k, :n]]
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "network": self.name,
+            "agents": self.n_agents,
+            "od_pairs": self.n_od,
+            "edges": self.n_edges,
+            "routes_per_od": self.k,
+            "ods_with_fewer_distinct_routes": int((~self.od_route_valid).any(axis=1).sum()),
+            "max_route_edges": int(self.od_route_len.max()),
+            "departures_s": [int(self.agent_depart.min()), int(self.agent_depart.max())],
+            "mean_min_fft_min": float(self.fft.min(axis=1).mean()),
+            "env_seed": self.env_seed,
+        }
+
+
+def _file_digest(paths: list[Path]) -> str:
+    h = hashlib.sha256()
+    for p in paths:
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def _cache_key(files: NetworkFiles, params: RouteParams, env_seed: int) -> str:
+    h = hashlib.sha256()
+    h.update(_file_digest([files.net, files.agents, files.od]).encode())
+    h.update(json.dumps(asdict(params), sort_keys=True).encode())
+    h.update(f"seed={env_seed};format={CACHE_FORMAT}".encode())
+    return h.hexdigest()[:24]
+
+
+_ARRAY_FIELDS = [f.name for f in fields(Scenario) if f.type in ("np.ndarray",)]
+_TUPLE_FIELDS = [f.name for f in fields(Scenario) if f.type.startswith("tuple")]
+
+
+def _save(scn: Scenario, path: Path) -> None:
+    meta = {
+        "name": scn.name, "net_file": scn.net_file, "env_seed": scn.env_seed,
+        "route_params": asdict(scn.route_params), "version": __version__,
+        **{k: list(getattr(scn, k)) for k in _TUPLE_FIELDS},
+    }
+    arrays = {k: getattr(scn, k) for k in _ARRAY_FIELDS}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, _meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **arrays)
+        os.replace(tmp, path)  # atomic: a reader never sees half a cache file
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _load(path: Path) -> Scenario:
+    with np.load(path) as data:
+        meta = json.loads(data["_meta"].tobytes().decode())
+        arrays = {k: data[k] for k in _ARRAY_FIELDS}
+    tuples = {k: tuple(meta[k]) for k in _TUPLE_FIELDS}
+    return Scenario(
+        name=meta["name"], net_file=meta["net_file"], env_seed=meta["env_seed"],
+        route_params=RouteParams(**meta["route_params"]), **tuples, **arrays,
+    )
+
+
+def load_scenario(
+    network: str = DEFAULT_NETWORK,
+    *,
+    networks_dir: str | os.PathLike | None = None,
+    env_seed: int = 42,
+    route_params: RouteParams | None = None,
+    use_cache: bool = True,
+    workers: int | None = None,
+) -> Scenario:
+    """Build (or load from cache) the Scenario of a network for an env seed."""
+    params = route_params or RouteParams()
+    files = find_network(network, networks_dir)
+    cache_file = cache_dir() / "scenarios" / f"{files.name}-{_cache_key(files, params, env_seed)}.npz"
+    if use_cache and cache_file.is_file():
+        try:
+            return _load(cache_file)
+        except Exception as exc:  # a stale or damaged cache is rebuilt, never trusted
+            log.warning("ignoring unreadable scenario cache %s (%s)", cache_file, exc)
+    scn = build_scenario(files, params, env_seed, workers=workers)
+    if use_cache:
+        _save(scn, cache_file)
+    return scn
+
+
+def build_scenario(
+    files: NetworkFiles, params: RouteParams, env_seed: int, workers: int | None = None
+) -> Scenario:
+    t0 = time.perf_counter()
+    net = read_net(files.net)
+    demand = read_demand(files, net)
+    pairs = sorted({(int(o), int(d)) for o, d in zip(demand.origin, demand.destination, strict=True)})
+    od_edges = [(demand.origins[o], demand.destinations[d]) for o, d in pairs]
+    graph = build_route_graph(net, passenger_only=params.passenger_only)
+    if workers is None:
+        workers = min(os.cpu_count() or 1, 4)
+    (results,) = generate_routes(graph, od_edges, params, env_seed, workers=workers)
+    failures = [(i, r) for i, r in enumerate(results) if isinstance(r, str)]
+    if failures:
+        lines = []
+        for i, msg in failures[:10]:
+            o, d = pairs[i]
+            rows = np.flatnonzero((demand.origin == o) & (demand.destination == d))
+            ids = ", ".join(str(int(demand.agent_id[r])) for r in rows[:5])
+            lines.append(f"origin {o} -> destination {d} (agents {ids}): {msg}")
+        raise NetworkError(
+            files.agents,
+            f"{len(failures)} OD pair(s) have no route in {files.net.name}"
+            + (" for passenger cars" if params.passenger_only else "") + ":\n  "
+            + "\n  ".join(lines),
+            "fix the origin/destination indices of these agents or remove them.",
+        )
+    ok: list[ODRoutes] = [r for r in results if isinstance(r, ODRoutes)]
+    index = net.index()
+    k = params.number_of_paths
+    max_len = max(len(route) for r in ok for route in r.routes)
+    routes = np.full((len(ok), k, max_len), -1, dtype=np.int32)
+    route_len = np.zeros((len(ok), k), dtype=np.int32)
+    valid = np.zeros((len(ok), k), dtype=bool)
+    for o, r in enumerate(ok):
+        valid[o, : r.n_distinct] = True
+        for j, route in enumerate(r.routes):
+            routes[o, j, : len(route)] = [index[e] for e in route]
+            route_len[o, j] = len(route)
+    fft, fft_full = free_flow_times(routes, net.length, net.speed, route_len)
+    route_length = np.append(net.length, 0.0)[routes].sum(axis=-1)
+    n_short = int((~valid).any(axis=1).sum())
+    if n_short:
+        log.warning(
+            "%s: %d OD pair(s) have fewer than %d distinct routes; the last distinct route is "
+            "repeated and masked (route_valid=False).", files.name, n_short, k,
+        )
+    od_lookup = {p: i for i, p in enumerate(pairs)}
+    agent_od_rows = np.array(
+        [od_lookup[(int(o), int(d))] for o, d in zip(demand.origin, demand.destination, strict=True)],
+        dtype=np.int32,
+    )
+    order = np.argsort(demand.start_time, kind="stable")
+    log.info("built scenario %s in %.1f s", files.name, time.perf_counter() - t0)
+    return Scenario(
+        name=files.name,
+        net_file=str(files.net),
+        env_seed=env_seed,
+        route_params=params,
+        edge_ids=net.edge_ids,
+        edge_length=net.length,
+        edge_speed=net.speed,
+        edge_lanes=net.lanes,
+        edge_priority=net.priority,
+        edge_type=net.road_type,
+        edge_capacity=net.capacity,
+        od_origin=np.array([p[0] for p in pairs], dtype=np.int32),
+        od_destination=np.array([p[1] for p in pairs], dtype=np.int32),
+        od_origin_edge=tuple(e for e, _ in od_edges),
+        od_destination_edge=tuple(e for _, e in od_edges),
+        od_routes=routes,
+        od_route_len=route_len,
+        od_route_valid=valid,
+        od_fft=fft,
+        od_fft_full=fft_full,
+        od_route_length=route_length,
+        agent_id=demand.agent_id[order],
+        agent_od=agent_od_rows[order],
+        agent_origin=demand.origin[order].astype(np.int32),
+        agent_destination=demand.destination[order].astype(np.int32),
+        agent_depart=demand.start_time[order],
+        agent_kind=tuple(demand.kind[i] for i in order),
+    )
+
+
+def check_routes_exist(scn: Scenario) -> None:
+    """Raise RouteError if any agent's OD lacks a route (defensive; build guarantees it)."""
+    if (scn.od_route_len[scn.agent_od] == 0).any():
+        raise RouteError("an agent has an empty route")
