@@ -212,7 +212,9 @@ def generate_routes(
     if workers <= 1 or len(tasks) < 32:
         _init_worker(graph)
         return (list(map(_worker, tasks)),)
-    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
+    # Not fork: JAX may already run threads in this process, and forking those can deadlock.
+    methods = mp.get_all_start_methods()
+    ctx = mp.get_context("forkserver" if "forkserver" in methods else "spawn")
     with ctx.Pool(workers, initializer=_init_worker, initargs=(graph,)) as pool:
         return (pool.map(_worker, tasks, chunksize=8),)
 
