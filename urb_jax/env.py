@@ -3,6 +3,9 @@
 One step = one day. CAVs (a fixed set after mutation) pick routes; humans pick by their learned
 model (`urb_jax.humans`); travel times come from a jittable `travel_time_fn(choices[N]) -> [N]`
 (the surrogate, or anything else); CAV rewards follow the task's behaviour (`urb_jax.rewards`).
+When `travel_params` is given, the function is called as `travel_time_fn(params, choices)` with
+the params read from the state: a refitted surrogate then swaps in with `with_travel_params`
+without recompiling anything.
 
 Departure order (AEC semantics): a CAV observes the choices of agents that departed earlier
 today. Humans' choices for a day are drawn when the previous day ends (stored in the state), so
@@ -17,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -38,6 +41,7 @@ class EnvState(NamedTuple):
     cav_actions: jnp.ndarray  # [C] yesterday's CAV choices (observation fallback)
     times: jnp.ndarray  # [N] yesterday's travel times, minutes
     day: jnp.ndarray  # int32
+    travel_params: Any = None  # parameters of travel_time_fn (e.g. the surrogate's), if any
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,6 +54,7 @@ class RoutingEnv:
     observation_type: str = "previous_agents_plus_start_time"
     humans_adapt: bool = False  # humans keep learning while CAVs train
     human_init: HumanState | None = None  # trained human knowledge from the human phase
+    travel_params: Any = None  # if set: travel_time_fn(params, choices), params carried in the state
 
     def __post_init__(self) -> None:
         scn = self.scenario
@@ -104,7 +109,7 @@ class RoutingEnv:
         free_flow_choice = jnp.asarray(np.argmin(np.where(scn.route_valid, scn.fft, np.inf), axis=1))
         cav_actions = free_flow_choice[self.cav_index].astype(jnp.int32)
         state = EnvState(humans, human_actions, cav_actions, jnp.asarray(scn.fft_full.min(axis=1)),
-                         jnp.zeros((), jnp.int32))
+                         jnp.zeros((), jnp.int32), self.travel_params)
         return self.observe(state, cav_actions), state
 
     def joint_actions(self, state: EnvState, cav_actions: jnp.ndarray) -> jnp.ndarray:
@@ -115,6 +120,13 @@ class RoutingEnv:
         """[C, obs_size] CAV observations given today's CAV choices (earlier departures only count)."""
         obs_all = observe(self.obs_spec, self.joint_actions(state, cav_actions))
         return obs_all[self.cav_index]
+
+    @staticmethod
+    def with_travel_params(state: EnvState, params: Any) -> EnvState:
+        """Swap the travel-time parameters of a (batched) state; batch axes are broadcast."""
+        batch = state.day.shape
+        return state._replace(travel_params=jax.tree_util.tree_map(
+            lambda p: jnp.broadcast_to(p, batch + jnp.shape(p)), params))
 
     def global_state(self, obs: jnp.ndarray) -> jnp.ndarray:
         """Centralised critic / mixer input: every CAV's observation, flattened [C * obs_size]."""
@@ -141,7 +153,10 @@ class RoutingEnv:
         dones [C] (every day ends the CAVs' episode, as in URB), info)."""
         k_learn, k_act = jax.random.split(key)
         choices = self.joint_actions(state, cav_actions)
-        times = self.travel_time_fn(choices)
+        if self.travel_params is None:
+            times = self.travel_time_fn(choices)
+        else:
+            times = self.travel_time_fn(state.travel_params, choices)
         rewards_all = cav_rewards(times, jnp.asarray(self.is_cav), self.reward_coefficients)
         humans = state.humans
         if self.humans_adapt or self.n_cavs == 0:
@@ -150,7 +165,8 @@ class RoutingEnv:
         else:
             humans = humans._replace(last_action=choices)
         human_actions = act(k_act, humans, self.human_params, jnp.asarray(self.scenario.fft))
-        new_state = EnvState(humans, human_actions, cav_actions.astype(jnp.int32), times, state.day + 1)
+        new_state = EnvState(humans, human_actions, cav_actions.astype(jnp.int32), times, state.day + 1,
+                             state.travel_params)
         rewards = rewards_all[self.cav_index]
         dones = jnp.ones((self.n_cavs,), dtype=bool)
         is_cav = jnp.asarray(self.is_cav)
