@@ -172,6 +172,9 @@ class Simulator:
         pos = {v: i for i, v in enumerate(ids)}
         removed: dict[str, tuple[float, int]] = {}  # id -> (SUMO time, status)
         last_depart = int(depart.max())
+        if cfg.max_sim_time_s <= last_depart:
+            raise ValueError(f"SumoConfig.max_sim_time_s={cfg.max_sim_time_s} must exceed the last "
+                             f"departure ({last_depart} s)")
         stuck, poll, cap = cfg.stuck_time_s, cfg.poll_every_s, cfg.max_sim_time_s
         urb_rule = cfg.stuck_rule == "urb"
         vehicle, simulation, step = libsumo.vehicle, libsumo.simulation, libsumo.simulationStep
@@ -255,7 +258,10 @@ class Simulator:
                 leave[i], status[i], length[i], loss[i] = t, st, 0.0, np.nan
                 delay[i] = t - depart[i]
         missing = ~seen & np.isnan(leave)
-        if missing.any():
+        if missing.any() and end_time >= cfg.max_sim_time_s:  # still waiting at the cap
+            leave[missing], status[missing], length[missing] = end_time, REMOVED_CAP, 0.0
+            delay[missing] = end_time - depart[missing]
+        elif missing.any():
             raise RuntimeError(f"{int(missing.sum())} vehicle(s) have no SUMO result, e.g. "
                                f"{[k for k, i in pos.items() if missing[i]][:5]}")
         tt = (leave + cfg.tt_offset_s - depart) / 60.0
