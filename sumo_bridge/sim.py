@@ -28,6 +28,8 @@ from sumo_bridge.tripinfo import insertion_order, parse_tripinfo, route_id, writ
 from sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayResult
 
 _ROUTE_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+# libsumo is one simulation per process: which Simulator's state it holds, if started at all.
+_LIBSUMO: dict[str, object] = {"started": False, "owner": None}
 
 
 def scenario_key(scenario: object) -> str:
@@ -99,7 +101,6 @@ class Simulator:
         self.redirect_output = redirect_output and self.log_file is not None
         base = self.config.shm_dir if os.path.isdir(self.config.shm_dir) else None
         self.workdir = Path(tempfile.mkdtemp(prefix=f"urbjax-sumo-{os.getpid()}-", dir=base))
-        self._started = False
         self._fresh: tuple | None = None  # load key of a loaded, not yet simulated state
         self._trip_path: Path | None = None
         self._n_loads = 0
@@ -123,21 +124,23 @@ class Simulator:
                 *self.config.sumo_args(seed)]
         if self.log_file and not self.redirect_output:
             args += ["--error-log", self.log_file]
-        if self._started:
+        if _LIBSUMO["started"]:
             libsumo.load(args)
         else:
             libsumo.start(["sumo", *args])
-            self._started = True
+            _LIBSUMO["started"] = True
+        _LIBSUMO["owner"] = self
         self._fresh = key
         self._trip_path = trip
 
     def close(self) -> None:
-        if self._started:
+        if _LIBSUMO["owner"] is self:
             import libsumo
 
             with contextlib.suppress(Exception):
                 libsumo.close()
-            self._started = False
+            _LIBSUMO["started"], _LIBSUMO["owner"] = False, None
+        self._fresh = None
         shutil.rmtree(self.workdir, ignore_errors=True)
 
     # --- one day ------------------------------------------------------------------------
@@ -155,7 +158,7 @@ class Simulator:
         choices = check_choices(scn, choices)
         cav = cav_mask(scn, is_cav)
         key = (str(scn.net_file), str(self._routes_file(scn)), int(seed))  # type: ignore[attr-defined]
-        if self._fresh != key:
+        if self._fresh != key or _LIBSUMO["owner"] is not self:
             self._load(key)
         self._fresh = None
         trip_path = self._trip_path
@@ -176,7 +179,9 @@ class Simulator:
             raise ValueError(f"SumoConfig.max_sim_time_s={cfg.max_sim_time_s} must exceed the last "
                              f"departure ({last_depart} s)")
         stuck, poll, cap = cfg.stuck_time_s, cfg.poll_every_s, cfg.max_sim_time_s
-        urb_rule = cfg.stuck_rule == "urb"
+        urb_rule, exact_rule = cfg.stuck_rule == "urb", cfg.stuck_rule == "routerl"
+        speed_var = libsumo.constants.VAR_SPEED
+        zero_steps: dict[str, int] = {}  # "routerl" rule: consecutive observations at speed 0
         vehicle, simulation, step = libsumo.vehicle, libsumo.simulation, libsumo.simulationStep
         watch: set[str] = set()
         next_poll = 0.0
@@ -184,9 +189,19 @@ class Simulator:
 
         def remove(v: str, status: int) -> None:
             removed[v] = (t, status)
+            if exact_rule and v in zero_steps:
+                vehicle.unsubscribe(v)  # libsumo fails the next step on a removed subscribed vehicle
             vehicle.remove(v, libsumo.constants.REMOVE_VAPORIZED)
 
         while True:
+            if exact_rule:  # RouteRL's own check, every step, on every vehicle of ours driving
+                for v, r in vehicle.getAllSubscriptionResults().items():
+                    if r[speed_var] == 0:
+                        zero_steps[v] = zero_steps.get(v, 0) + 1
+                        if zero_steps[v] > stuck:
+                            remove(v, REMOVED_STUCK)
+                    else:
+                        zero_steps[v] = 0
             if t >= next_poll:
                 running = vehicle.getIDList()
                 if urb_rule:
@@ -219,6 +234,10 @@ class Simulator:
                 break
             step()
             t = simulation.getTime()
+            if exact_rule:
+                for v in simulation.getDepartedIDList():
+                    if v in pos:
+                        vehicle.subscribe(v, [speed_var])
             if simulation.getMinExpectedNumber() == 0:
                 break
 
