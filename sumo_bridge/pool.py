@@ -65,8 +65,9 @@ class InProcessExecutor:
     def run_days(self, scenario: object, choices: np.ndarray, seeds: list[int] | np.ndarray,
                  is_cav: np.ndarray | None = None) -> list[DayResult]:
         choices, seeds, cavs = _batch(scenario, choices, seeds, is_cav)
-        return [self.sim.run_day(scenario, c, seed=s, is_cav=m)
-                for c, s, m in zip(choices, seeds, cavs, strict=True)]
+        nxt = [*seeds[1:], seeds[-1]] if seeds else []
+        return [self.sim.run_day(scenario, c, seed=s, is_cav=m, next_seed=n)
+                for c, s, m, n in zip(choices, seeds, cavs, nxt, strict=True)]
 
     def close(self) -> None:
         self.sim.close()
@@ -76,7 +77,7 @@ def _worker_main(conn: Connection, config: SumoConfig, log_path: str) -> None:
     """Worker loop: owns one Simulator; SUMO's output goes to the worker's log file."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and kills us
     with redirect_fds(log_path):
-        sim = Simulator(config)
+        sim = Simulator(config, console_warnings=True)  # our stdout/stderr already go to the log
         scenarios: dict[str, object] = {}
         conn.send(("ready", os.getpid()))
         while True:
@@ -86,11 +87,11 @@ def _worker_main(conn: Connection, config: SumoConfig, log_path: str) -> None:
                 break
             if msg[0] == "stop":
                 break
-            _, tid, key, scn, choices, seed, is_cav = msg
+            _, tid, key, scn, choices, seed, is_cav, next_seed = msg
             if scn is not None:
                 scenarios[key] = scn
             try:
-                res = sim.run_day(scenarios[key], choices, seed=seed, is_cav=is_cav)
+                res = sim.run_day(scenarios[key], choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
                 conn.send(("ok", tid, res))
             except Exception:
                 conn.send(("err", tid, traceback.format_exc()))
@@ -210,7 +211,9 @@ class SumoPool:
                         send_scn = None if key in w.scenarios else scenario
                         w.task, w.started = tid, time.monotonic()
                         try:
-                            w.conn.send(("day", tid, key, send_scn, choices[tid], seeds[tid], cavs[tid]))
+                            ahead = tid + len(self.workers)  # likely this worker's next day: pre-load it
+                            nxt = seeds[ahead] if ahead < len(seeds) else seeds[tid]
+                            w.conn.send(("day", tid, key, send_scn, choices[tid], seeds[tid], cavs[tid], nxt))
                             w.scenarios.add(key)
                         except (BrokenPipeError, OSError) as exc:
                             fail(w, f"worker {w.index} could not take the day ({exc!r})")

@@ -95,10 +95,11 @@ class Simulator:
     """Owns this process's libsumo simulation and runs days on it."""
 
     def __init__(self, config: SumoConfig | None = None, log_file: str | os.PathLike | None = None,
-                 redirect_output: bool = True) -> None:
+                 redirect_output: bool = True, console_warnings: bool = False) -> None:
         self.config = config or SumoConfig()
         self.log_file = str(log_file) if log_file else None
         self.redirect_output = redirect_output and self.log_file is not None
+        self.console_warnings = console_warnings  # pool workers: their fds already go to a log
         base = self.config.shm_dir if os.path.isdir(self.config.shm_dir) else None
         self.workdir = Path(tempfile.mkdtemp(prefix=f"urbjax-sumo-{os.getpid()}-", dir=base))
         self._fresh: tuple | None = None  # load key of a loaded, not yet simulated state
@@ -124,6 +125,8 @@ class Simulator:
                 *self.config.sumo_args(seed)]
         if self.log_file and not self.redirect_output:
             args += ["--error-log", self.log_file]
+        elif not self.log_file and not self.console_warnings:
+            args += ["--no-warnings", "true"]  # no log given: keep warnings off the console
         if _LIBSUMO["started"]:
             libsumo.load(args)
         else:
@@ -145,12 +148,13 @@ class Simulator:
 
     # --- one day ------------------------------------------------------------------------
     def run_day(self, scenario: object, choices: np.ndarray, *, seed: int,
-                is_cav: np.ndarray | None = None) -> DayResult:
+                is_cav: np.ndarray | None = None, next_seed: int | None = None) -> DayResult:
+        """One day; `next_seed` (default: `seed`) is the seed the next day is pre-loaded with."""
         with redirect_fds(self.log_file if self.redirect_output else None):
-            return self._run_day(scenario, choices, seed, is_cav)
+            return self._run_day(scenario, choices, seed, is_cav, seed if next_seed is None else next_seed)
 
     def _run_day(self, scn: object, choices: np.ndarray, seed: int,
-                 is_cav: np.ndarray | None) -> DayResult:
+                 is_cav: np.ndarray | None, next_seed: int) -> DayResult:
         import libsumo
 
         t0 = time.perf_counter()
@@ -243,7 +247,7 @@ class Simulator:
 
         end_time = simulation.getTime()
         teleports = int(float(simulation.getParameter("", "stats.teleports.total")))
-        self._load(key)  # closes this day's tripinfo; the next day with this seed starts from it
+        self._load((*key[:2], int(next_seed)))  # closes this day's tripinfo; pre-loads the next day
         trips = parse_tripinfo(trip_path)
         trip_path.unlink(missing_ok=True)
         return self._result(scn, trips, removed, pos, depart, seed, teleports, end_time,

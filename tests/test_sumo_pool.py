@@ -96,3 +96,19 @@ def test_sumo_error_is_reported_with_its_output(grid_scenario, tmp_path):
         p.run_days(grid_scenario, grid_scenario.fft.argmin(1)[None], [1])
     msg = str(err.value)
     assert "raised" in msg and "missing.add.xml" in msg.split("SUMO log tail")[1]  # SUMO's own words
+
+
+def test_sumo_warnings_go_to_the_worker_log_not_the_console(grid_scenario, tmp_path, capfd):
+    from test_sumo_bridge import _blocker
+
+    from sumo_bridge import SumoConfig
+
+    choices = grid_scenario.fft.argmin(1)
+    add, _ = _blocker(grid_scenario, choices, tmp_path)
+    cfg = SumoConfig(additional_files=(str(add),), stuck_rule="sumo")  # SUMO warns on each teleport
+    with SumoPool(1, config=cfg, log_dir=tmp_path / "logs") as p:
+        res = p.run_days(grid_scenario, choices[None], [42])[0]
+    assert res.n_removed > 0
+    out, err = capfd.readouterr()
+    assert "Teleporting" not in out + err
+    assert "Teleporting" in (tmp_path / "logs" / "sumo_worker0.log").read_text()
