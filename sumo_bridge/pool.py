@@ -52,7 +52,9 @@ def _batch(scenario: object, choices: np.ndarray, seeds: list[int] | np.ndarray,
         cavs: list[np.ndarray | None] = [None] * len(seeds)
     else:
         m = np.asarray(is_cav, dtype=bool)
-        cavs = list(np.broadcast_to(m, choices.shape)) if m.ndim in (1, 2) else []
+        if m.shape not in (choices.shape, choices.shape[1:]):
+            raise ValueError(f"is_cav has shape {m.shape}; expected [N] or [B, N] = {choices.shape}")
+        cavs = list(np.broadcast_to(m, choices.shape))
     return choices, seeds, cavs
 
 

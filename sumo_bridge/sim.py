@@ -105,7 +105,7 @@ class Simulator:
         self._fresh: tuple | None = None  # load key of a loaded, not yet simulated state
         self._trip_path: Path | None = None
         self._n_loads = 0
-        atexit.register(self.close)
+        atexit.register(shutil.rmtree, self.workdir, True)  # files only; libsumo ends with us
 
     # --- SUMO control -------------------------------------------------------------------
     def _routes_file(self, scenario: object) -> Path:

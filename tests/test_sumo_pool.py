@@ -112,3 +112,16 @@ def test_sumo_warnings_go_to_the_worker_log_not_the_console(grid_scenario, tmp_p
     out, err = capfd.readouterr()
     assert "Teleporting" not in out + err
     assert "Teleporting" in (tmp_path / "logs" / "sumo_worker0.log").read_text()
+
+
+def test_pool_takes_per_day_cav_masks(pool, grid_scenario):
+    from sumo_bridge import run_day
+
+    rng = np.random.default_rng(2)
+    choices = rng.integers(0, grid_scenario.k, size=(2, grid_scenario.n_agents))
+    cav = rng.random((2, grid_scenario.n_agents)) < 0.5
+    out = pool.run_days(grid_scenario, choices, [9, 9], is_cav=cav)
+    for b in range(2):
+        assert out[b].same_as(run_day(grid_scenario, choices[b], seed=9, is_cav=cav[b]))
+    with pytest.raises(ValueError, match="is_cav"):
+        pool.run_days(grid_scenario, choices, [9, 9], is_cav=cav[:, :5])
