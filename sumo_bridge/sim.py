@@ -117,7 +117,7 @@ class Simulator:
     def _load(self, key: tuple) -> None:
         import libsumo
 
-        net_file, routes, seed = key
+        net_file, routes, seed, _ = key
         self._n_loads += 1
         trip = self.workdir / f"trip-{self._n_loads}.xml"
         adds = ",".join([str(routes), *self.config.additional_files])
@@ -161,7 +161,9 @@ class Simulator:
         cfg = self.config
         choices = check_choices(scn, choices)
         cav = cav_mask(scn, is_cav)
-        key = (str(scn.net_file), str(self._routes_file(scn)), int(seed))  # type: ignore[attr-defined]
+        # everything the loaded state depends on (the config may be swapped between days)
+        key = (str(scn.net_file), str(self._routes_file(scn)), int(seed),  # type: ignore[attr-defined]
+               (cfg.additional_files, tuple(cfg.sumo_args(0))))
         if self._fresh != key or _LIBSUMO["owner"] is not self:
             self._load(key)
         self._fresh = None
@@ -247,7 +249,7 @@ class Simulator:
 
         end_time = simulation.getTime()
         teleports = int(float(simulation.getParameter("", "stats.teleports.total")))
-        self._load((*key[:2], int(next_seed)))  # closes this day's tripinfo; pre-loads the next day
+        self._load((*key[:2], int(next_seed), key[3]))  # closes this day's tripinfo; pre-loads the next day
         trips = parse_tripinfo(trip_path)
         trip_path.unlink(missing_ok=True)
         return self._result(scn, trips, removed, pos, depart, seed, teleports, end_time,
