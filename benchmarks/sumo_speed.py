@@ -99,6 +99,7 @@ def main() -> None:
 
     binary = os.path.join(sumo.SUMO_HOME, "bin", "sumo")
     rows = []
+    load0 = os.getloadavg()  # other work on the machine skews every column (the pool ones most)
     shm = "/dev/shm" if os.path.isdir("/dev/shm") else None
     with tempfile.TemporaryDirectory(prefix="sumo-speed-", dir=shm) as d:
         for name in args.networks:
@@ -107,8 +108,9 @@ def main() -> None:
             rows.append(bench_network(name, nets, args.reps, args.pool_days, binary, Path(d)))
             r = rows[-1]
             print(f"  done {name}: cli {r['cli_s']:.3f}s run_day {r['run_day_s']:.3f}s", flush=True)
-    print(f"\ncpus={os.cpu_count()} reps={args.reps} pool_days={args.pool_days} "
-          "(medians; days/s over one batch)\n")
+    load = os.getloadavg()
+    print(f"\ncpus={os.cpu_count()} load average at start {load0[0]:.1f}, at end {load[0]:.1f} "
+          f"reps={args.reps} pool_days={args.pool_days} (medians; days/s over one batch)\n")
     print("| network | agents | mean tt (min) | removed | CLI day (s) | run_day (s) | run_day/CLI "
           "| 'routerl' rule/CLI | pool 1w (days/s) | pool 2w (days/s) | 2w/1w |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
