@@ -4,7 +4,9 @@ Every driver takes its free-flow fastest route (`scn.fft.argmin(1)`). CLI and ru
 interleaved (CLI, run_day, CLI, run_day, ...) so that machine load hits both alike; the table
 reports medians. "'routerl' rule" is run_day with RouteRL's exact per-step stuck check (a speed
 subscription on every vehicle: the cost of reading vehicles through libsumo every step). The
-pool columns run the same batch on 1 and then 2 warm workers.
+pool columns run the same batch on 1 and then 2 warm workers; "days in flight" is the sum of the
+days' in-worker wall times over the batch wall time (2.0: both workers busy all the time, so a
+2w/1w below 2 then means the CPUs were shared with other work).
 
     python benchmarks/sumo_speed.py [--networks urb_grid saint_arnoult provins ingolstadt_custom]
 """
@@ -77,14 +79,17 @@ def bench_network(name: str, networks_dir: Path | None, reps: int, pool_days: in
         with SumoPool(n_workers, config=cfg, log_dir=work / f"logs-{name}-{n_workers}") as pool:
             pool.run_days(scn, batch[:n_workers], [42] * n_workers)  # warm every worker
             t0 = time.perf_counter()
-            pool.run_days(scn, batch, [42] * pool_days)
-            rates[n_workers] = pool_days / (time.perf_counter() - t0)
+            out = pool.run_days(scn, batch, [42] * pool_days)
+            wall = time.perf_counter() - t0
+            rates[n_workers] = pool_days / wall
+            overlap = sum(r.wall_time for r in out) / wall  # days in flight on average
     cli, lib = statistics.median(cli_t), statistics.median(lib_t)
     return {
         "network": name, "agents": scn.n_agents, "mean_tt_min": float(res.travel_time.mean()),
         "removed": res.n_removed, "cli_s": cli, "run_day_s": lib, "ratio": lib / cli,
         "exact_ratio": statistics.median(exact_t) / cli,
         "pool1_dps": rates[1], "pool2_dps": rates[2], "pool_speedup": rates[2] / rates[1],
+        "overlap": overlap,
     }
 
 
@@ -112,14 +117,14 @@ def main() -> None:
     print(f"\ncpus={os.cpu_count()} load average at start {load0[0]:.1f}, at end {load[0]:.1f} "
           f"reps={args.reps} pool_days={args.pool_days} (medians; days/s over one batch)\n")
     print("| network | agents | mean tt (min) | removed | CLI day (s) | run_day (s) | run_day/CLI "
-          "| 'routerl' rule/CLI | pool 1w (days/s) | pool 2w (days/s) | 2w/1w |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| 'routerl' rule/CLI | pool 1w (days/s) | pool 2w (days/s) | 2w/1w | 2w days in flight |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['network']} | {r['agents']} | {r['mean_tt_min']:.2f} | {r['removed']} "
               f"| {r['cli_s']:.3f} "
               f"| {r['run_day_s']:.3f} | {r['ratio']:.2f} | {r['exact_ratio']:.2f} "
               f"| {r['pool1_dps']:.2f} | {r['pool2_dps']:.2f} "
-              f"| {r['pool_speedup']:.2f} |")
+              f"| {r['pool_speedup']:.2f} | {r['overlap']:.2f} |")
 
 
 if __name__ == "__main__":
