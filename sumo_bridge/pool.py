@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
+import shutil
 import signal
 import tempfile
 import time
@@ -104,6 +105,7 @@ class _Worker:
     def __init__(self, ctx: mp.context.BaseContext, index: int, config: SumoConfig, log_path: Path) -> None:
         self.index = index
         self.log_path = log_path
+        self.shm_dir = config.shm_dir if os.path.isdir(config.shm_dir) else tempfile.gettempdir()
         self.conn, child = ctx.Pipe()
         self.proc = ctx.Process(target=_worker_main, args=(child, config, str(log_path)),
                                 name=f"sumo-worker-{index}", daemon=True)
@@ -132,6 +134,8 @@ class _Worker:
                 os.kill(self.proc.pid, signal.SIGKILL)
         self.proc.join(timeout=10)
         self.conn.close()
+        for d in Path(self.shm_dir).glob(f"urbjax-sumo-{self.proc.pid}-*"):  # a killed worker's files
+            shutil.rmtree(d, ignore_errors=True)
 
 
 def log_tail(path: Path, chars: int = 3000) -> str:

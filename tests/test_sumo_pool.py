@@ -6,6 +6,7 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -66,6 +67,7 @@ def test_worker_killed_mid_day_is_restarted_and_day_repeated(pool, grid_scenario
     assert killed and pool.restarts == restarts + 1
     assert all(a.same_as(b) for a, b in zip(out, ref, strict=True))
     assert all(w.proc.is_alive() for w in pool.workers)
+    assert not list(Path(pool.workers[0].shm_dir).glob(f"urbjax-sumo-{killed[0]}-*"))  # files cleaned
 
 
 def test_second_failure_raises_with_network_day_and_log(grid_scenario, tmp_path):
