@@ -150,7 +150,7 @@ def _int_column(df: pd.DataFrame, col: str, path: Path) -> np.ndarray:
                 values[row] = int(as_float)
             else:
                 raise NetworkError(
-                    path, f"row {row + 2}, field '{col}': '{raw}' is not an integer.",
+                    path, f"line {row + 2}, field '{col}': '{raw}' is not an integer.",
                     f"'{col}' must be a whole number" + (" of seconds." if col == "start_time" else "."),
                 ) from None
     return values
@@ -169,7 +169,7 @@ def read_demand(files: NetworkFiles, net: NetData | None = None) -> Demand:
     if (counts > 1).any():
         dup = int(uniq[counts > 1][0])
         rows = [int(r) + 2 for r in np.flatnonzero(ids == dup)]
-        raise NetworkError(files.agents, f"field 'id': duplicate id {dup} in rows {rows}.",
+        raise NetworkError(files.agents, f"field 'id': duplicate id {dup} on lines {rows}.",
                            "give every agent a unique id.")
     for name, values, table in (("origin", origin, origins), ("destination", dest, destinations)):
         bad = np.flatnonzero((values < 0) | (values >= len(table)))
@@ -177,17 +177,17 @@ def read_demand(files: NetworkFiles, net: NetData | None = None) -> Demand:
             r = int(bad[0])
             raise NetworkError(
                 files.agents,
-                f"row {r + 2}, field '{name}': index {int(values[r])} is out of range "
+                f"line {r + 2}, field '{name}': index {int(values[r])} is out of range "
                 f"(the '{name}s' list of {files.od.name} has {len(table)} entries).",
                 f"use an index in 0..{len(table) - 1}.",
             )
     bad = np.flatnonzero(start < 0)
     if bad.size:
         r = int(bad[0])
-        raise NetworkError(files.agents, f"row {r + 2}, field 'start_time': negative time {start[r]}.")
+        raise NetworkError(files.agents, f"line {r + 2}, field 'start_time': negative time {start[r]}.")
     for row, kind in enumerate(kinds):
         if kind not in AGENT_KINDS:
-            raise NetworkError(files.agents, f"row {row + 2}, field 'kind': '{kind}' is unknown.",
+            raise NetworkError(files.agents, f"line {row + 2}, field 'kind': '{kind}' is unknown.",
                                f"use one of {', '.join(AGENT_KINDS)}.")
     if net is not None:
         known = set(net.edge_ids)

@@ -1,0 +1,44 @@
+"""Scenario build times: first build (routes generated) vs cached load, per network.
+
+Usage: python benchmarks/scenario_build.py [--networks-dir ../shared/networks] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+DEFAULT_NETS = ["urb_grid", "saint_arnoult", "provins", "ingolstadt_custom"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    shared = Path(__file__).resolve().parents[2] / "shared" / "networks"
+    parser.add_argument("--networks-dir", default=str(shared))
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--nets", nargs="*", default=DEFAULT_NETS)
+    args = parser.parse_args()
+    os.environ["URB_JAX_CACHE"] = tempfile.mkdtemp(prefix="urb-jax-bench-")
+    from urb_jax.errors import NetworkError
+    from urb_jax.scenario import load_scenario
+
+    print(f"{'network':<20} {'agents':>7} {'ODs':>5} {'first build s':>14} {'cached load s':>14}")
+    for name in args.nets:
+        try:
+            t0 = time.perf_counter()
+            scn = load_scenario(name, networks_dir=args.networks_dir, workers=args.workers)
+            first = time.perf_counter() - t0
+        except NetworkError as exc:
+            print(f"{name:<20} skipped: {exc}")
+            continue
+        t0 = time.perf_counter()
+        load_scenario(name, networks_dir=args.networks_dir)
+        cached = time.perf_counter() - t0
+        print(f"{name:<20} {scn.n_agents:>7} {scn.n_od:>5} {first:>14.2f} {cached:>14.3f}")
+
+
+if __name__ == "__main__":
+    main()

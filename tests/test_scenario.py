@@ -1,0 +1,48 @@
+import numpy as np
+
+from urb_jax.cli import main
+from urb_jax.routes import RouteParams
+from urb_jax.scenario import load_scenario
+
+
+def test_agents_sorted_by_departure_and_views_consistent(grid_scenario):
+    scn = grid_scenario
+    assert (np.diff(scn.agent_depart) >= 0).all()
+    assert sorted(scn.agent_id.tolist()) == list(range(scn.n_agents))
+    assert scn.routes.shape == (scn.n_agents, scn.k, scn.od_routes.shape[2])
+    assert (scn.fft <= scn.fft_full).all()
+    assert scn.simulation_timesteps == int(scn.agent_depart.max())
+
+
+def test_cache_roundtrip_is_identical(grid_scenario):
+    again = load_scenario("urb_grid")  # from the cache
+    fresh = load_scenario("urb_grid", use_cache=False, workers=1)
+    for name in ("od_routes", "od_fft", "agent_id", "agent_depart", "edge_capacity"):
+        assert np.array_equal(getattr(again, name), getattr(fresh, name))
+        assert np.array_equal(getattr(grid_scenario, name), getattr(fresh, name))
+    assert again.edge_ids == fresh.edge_ids and again.route_params == fresh.route_params
+
+
+def test_seed_and_params_change_routes():
+    a = load_scenario("urb_grid", env_seed=1, use_cache=False, workers=1)
+    b = load_scenario("urb_grid", env_seed=2, use_cache=False, workers=1)
+    c = load_scenario("urb_grid", env_seed=1, route_params=RouteParams(beta=-1.0), use_cache=False, workers=1)
+    assert not np.array_equal(a.od_routes, b.od_routes) or not np.array_equal(a.od_routes, c.od_routes)
+
+
+def test_capacity_from_marouter_table(grid_scenario):
+    scn = grid_scenario
+    i = scn.edge_ids.index("h0_1")  # arterial: 19.44 m/s, one lane -> 1200 veh/h
+    j = scn.edge_ids.index("h0_0")  # side street: 11.11 m/s -> 1125 veh/h
+    assert scn.edge_capacity[i] == 1200.0 and scn.edge_capacity[j] == 1125.0
+
+
+def test_scenario_cli_writes_routes_csv(tmp_path, capsys):
+    out = tmp_path / "routes.csv"
+    assert main(["scenario", "--routes-csv", str(out)]) == 0
+    import pandas as pd
+
+    df = pd.read_csv(out)
+    assert list(df.columns) == ["origins", "destinations", "path", "free_flow_time"]
+    assert len(df) == 25 * 4
+    assert '"agents": 400' in capsys.readouterr().out
