@@ -1,10 +1,11 @@
-"""SUMO days for calibration and validation: through `sumo_bridge` when it offers `run_day`,
-otherwise through the `sumo` command line (same routes, same URB travel-time measure), cached on disk.
+"""SUMO days for calibration and validation, cached on disk (scenario + choices + seed + backend).
 
-The CLI fallback follows URB's day: vehicles inserted at their departure second with SUMO's
-default vehicle parameters, `--seed`, step 1 s; travel time = (arrival - scheduled depart + 1 s)/60
-(insertion delay included). Vehicles waiting 600 s are removed (`--time-to-teleport 600` with
-`.remove`) and charged `simulation_timesteps/60` like RouteRL's stuck rule.
+Days run through `sumo_bridge` (libsumo; `SumoPool` for several workers) when it offers
+`run_day`, otherwise through the `sumo` command line, which follows URB's day: vehicles inserted
+at their departure second with SUMO's default vehicle parameters, `--seed`, step 1 s; travel
+time = (arrival - scheduled depart + 2 s)/60 (sumo_bridge's RouteRL offset; insertion delay
+included). Vehicles waiting 600 s are removed (`--time-to-teleport 600` with `.remove`) and
+charged `simulation_timesteps/60` like RouteRL's stuck rule.
 """
 
 from __future__ import annotations
@@ -79,7 +80,7 @@ def run_day_cli(scn: Scenario, choices: np.ndarray, *, seed: int = 42) -> DayRes
             continue
         arrival = float(t.get("arrival"))
         end = max(end, arrival)
-        out["tt"][i] = (arrival - float(scn.agent_depart[i]) + 1.0) / 60.0
+        out["tt"][i] = (arrival - float(scn.agent_depart[i]) + 2.0) / 60.0
         out["dur"][i] = float(t.get("duration"))
         out["len"][i] = float(t.get("routeLength"))
         out["loss"][i] = float(t.get("timeLoss"))
@@ -182,7 +183,17 @@ def sumo_days(
             _to_npz(path, day)
         return b, day
 
-    if todo:
+    if todo and backend_name() == "sumo_bridge" and workers > 1:
+        from sumo_bridge import SumoPool
+
+        idx = [b for b, _ in todo]
+        with SumoPool(min(workers, len(idx))) as pool:
+            days = pool.run_days(scn, choices[idx], [int(seeds[b]) for b in idx])
+        for (b, path), day in zip(todo, days, strict=True):
+            results[b] = day
+            if use_cache:
+                _to_npz(path, day)
+    elif todo:
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
             for b, day in pool.map(job, todo):
                 results[b] = day
