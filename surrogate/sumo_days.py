@@ -193,6 +193,10 @@ def sumo_days(
             results[b] = day
             if use_cache:
                 _to_npz(path, day)
+    elif todo and workers <= 1:
+        for item in todo:
+            b, day = job(item)
+            results[b] = day
     elif todo:
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
             for b, day in pool.map(job, todo):
