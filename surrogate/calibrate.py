@@ -58,6 +58,7 @@ class FitConfig:
     mean_weight: float = 1.0  # weight of the per-day mean error term
     edge_prior: float = 2e-3  # L2 weight on per-edge log-deviations (prior toward the class value)
     anchor: float = 0.0  # L2 weight toward the starting parameters (refit)
+    frozen: tuple[str, ...] = ()  # parameter names kept at their starting value (ablations)
 
 
 REFIT = FitConfig(steps=150, anchor=1e-2)
@@ -94,6 +95,7 @@ def fit_params(params: Params, static: Static, sample: SumoSample, fit: FitConfi
         def step(carry, _):
             p, s = carry
             loss, g = jax.value_and_grad(loss_fn)(p, static, data, anchor, fit)
+            g = {k: jnp.zeros_like(v) if k in fit.frozen else v for k, v in g.items()}
             upd, s = opt.update(g, s, p)
             return (optax.apply_updates(p, upd), s), loss
 

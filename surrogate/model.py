@@ -40,6 +40,7 @@ class SurrogateConfig:
     entry_scale: float = 1.2  # gamma: edge entry times use free-flow times scaled by this
     origin_window_s: float = 60.0  # insertion-load window: same-origin departures in (d - w, d]
     chunk: int = 128  # batch chunk per map step (cache-sized working set)
+    interpolate: bool = True  # split each edge entry between the two nearest bins (else: hard bins)
 
 
 @partial(
@@ -132,6 +133,8 @@ def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig()) -> 
     u = enter / config.bin_s - 0.5  # position relative to bin centres
     b0 = np.floor(u).astype(np.int64)
     f = u - b0
+    if not config.interpolate:
+        b0, f = np.floor(enter / config.bin_s).astype(np.int64), np.zeros_like(u)
     row = np.concatenate([n_i * K + k_i] * 2)
     edge = np.concatenate([e_i, e_i])
     b = np.concatenate([b0, b0 + 1]) + 1  # >= 0
