@@ -35,8 +35,9 @@ VARIANTS: dict[str, tuple[dict, dict, tuple[str, ...]]] = {
     "no junction delay": ({}, {"log_junc_j": OFF}, ("log_junc_j", "log_junc_e")),
     "no insertion term": ({}, {"log_ins": OFF}, ("log_ins",)),
     "no per-edge deviations": ({}, {}, EDGE),
+    "no per-agent speed factor": ({}, {}, ("log_agent",)),
     "speed factor only (t0*s + c0)": ({}, {"log_a_c": OFF, "log_junc_j": OFF, "log_ins": OFF},
-                                      ("log_a_c", "log_junc_j", "log_ins", *EDGE)),
+                                      ("log_a_c", "log_junc_j", "log_ins", "log_agent", *EDGE)),
 }
 
 

@@ -57,6 +57,7 @@ class FitConfig:
     learning_rate: float = 0.05
     mean_weight: float = 1.0  # weight of the per-day mean error term
     edge_prior: float = 2e-3  # L2 weight on per-edge log-deviations (prior toward the class value)
+    agent_prior: float = 1e-3  # L2 weight on per-agent log speed factors (prior toward 1)
     anchor: float = 0.0  # L2 weight toward the starting parameters (refit)
     frozen: tuple[str, ...] = ()  # parameter names kept at their starting value (ablations)
 
@@ -74,9 +75,10 @@ def loss_fn(params: Params, static: Static, sample: dict[str, jax.Array], anchor
     pm = jnp.where(m, pred, 0.0).sum(1) / jnp.maximum(m.sum(1), 1)
     ym = jnp.where(m, y, 0.0).sum(1) / jnp.maximum(m.sum(1), 1)
     mean_term = (((pm - ym) / ym) ** 2).mean()
-    prior = sum((params[k] ** 2).sum() for k in EDGE_KEYS)
+    prior = fit.edge_prior * sum((params[k] ** 2).sum() for k in EDGE_KEYS)
+    prior = prior + fit.agent_prior * (params["log_agent"] ** 2).sum()
     anchor = sum(((params[k] - anchor_params[k]) ** 2).sum() for k in params)
-    return agent_term + fit.mean_weight * mean_term + fit.edge_prior * prior + fit.anchor * anchor
+    return agent_term + fit.mean_weight * mean_term + prior + fit.anchor * anchor
 
 
 def fit_params(params: Params, static: Static, sample: SumoSample, fit: FitConfig | None = None) -> Params:

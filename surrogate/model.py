@@ -7,7 +7,11 @@ moment the agent enters it, plus an insertion delay and an intercept:
     flow           x_{e,b} = sum_{n,k,j: e_nkj=e} P_nk * w_b(u_nkj)          (triangular kernel in bins)
     edge time      tau_{e,b} = (t0_e s_e + j_e) * (1 + a_e (x_{e,b} / cap_e)^p)
     route time     R_nk = sum_j sum_b w_b(u_nkj) tau_{e_nkj,b}
-    agent time     T_n = sum_k P_nk R_nk + ins * q_n + c0                     (seconds; returned /60)
+    agent time     T_n = g_n sum_k P_nk R_nk + ins * q_n + c0                 (seconds; returned /60)
+
+`g_n` is a per-agent speed factor: SUMO draws each vehicle's speedFactor (N(1, 0.1)) from the
+seeded RNG in insertion order, so under URB's fixed seed an agent drives 10% faster or slower
+than the limit on every day and every route; the fit recovers it (prior toward 1).
 
 `w_b` splits an entry between the two nearest bin centres (linear interpolation), so flows and
 times move continuously with departure time. The jitted day is two sorted segment sums laid out
@@ -177,6 +181,7 @@ def init_params(static: Static) -> dict[str, jax.Array]:
         "log_a_e": jnp.zeros(ne),
         "log_junc_j": jnp.log(jnp.array([8.0, 2.0, 4.0, 2.0])[:nj]),  # s per traversal
         "log_junc_e": jnp.zeros(ne),
+        "log_agent": jnp.zeros(static.n),  # per-agent speed factor g_n (seeded SUMO speedFactor)
         "log_ins": jnp.log(jnp.array(1.0)),  # s per same-origin departure in the window
         "intercept": jnp.array(1.0),  # s (URB's +1 s step offset, start-up acceleration)
     }
@@ -223,7 +228,8 @@ def route_times_seconds(params, static: Static, probs: jax.Array) -> jax.Array:
     base, a = edge_terms(params, static)
     X = jnp.moveaxis(probs, 0, -1).reshape(static.n * static.k, -1)
     R = _route_times(X, base[static.cell_edge], a[static.cell_edge], static)
-    return jnp.moveaxis(R.reshape(static.n, static.k, -1), -1, 0)
+    R = R.reshape(static.n, static.k, -1) * jnp.exp(params["log_agent"])[:, None, None]
+    return jnp.moveaxis(R, -1, 0)
 
 
 def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) -> jax.Array:
@@ -253,7 +259,8 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
         xs = jnp.moveaxis(x.reshape((*x.shape[:-1], n_chunks, size)), -2, 0)
         out = jax.lax.map(lambda c: _day_chunk(c, base_c, a_c, static), xs)  # [n_chunks, N, size]
         sec = jnp.moveaxis(out, 0, 1).reshape(static.n, -1)[:, :B]
-    sec = sec + jnp.exp(params["log_ins"]) * static.origin_load[:, None] + params["intercept"]
+    ins = jnp.exp(params["log_ins"]) * static.origin_load[:, None]
+    sec = sec * jnp.exp(params["log_agent"])[:, None] + ins + params["intercept"]
     out = sec.T / 60.0
     return out[0] if single else out
 
