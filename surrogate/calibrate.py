@@ -53,10 +53,10 @@ class SumoSample:
 class FitConfig:
     """Optimiser and loss weights."""
 
-    steps: int = 400
+    steps: int = 1000
     learning_rate: float = 0.05
     mean_weight: float = 1.0  # weight of the per-day mean error term
-    edge_prior: float = 2e-3  # L2 weight on per-edge log-deviations (prior toward the class value)
+    edge_prior: float = 1e-5  # L2 weight on per-edge log-deviations (prior toward the class value)
     agent_prior: float = 1e-3  # L2 weight on per-agent log speed factors (prior toward 1)
     anchor: float = 0.0  # L2 weight toward the starting parameters (refit)
     frozen: tuple[str, ...] = ()  # parameter names kept at their starting value (ablations)
