@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -90,22 +91,25 @@ def fit_params(params: Params, static: Static, sample: SumoSample, fit: FitConfi
         "arrived": jnp.asarray(sample.arrived),
     }
     anchor = jax.tree.map(jnp.asarray, params)
+    p, _ = _run_fit(anchor, static, data, fit)
+    return p
+
+
+@partial(jax.jit, static_argnames="fit")
+def _run_fit(p0: Params, static: Static, data: dict[str, jax.Array], fit: FitConfig):
+    """`fit.steps` Adam steps in one scan; jitted once per (shapes, FitConfig), so periodic refits
+    on same-sized samples do not recompile."""
     opt = optax.adam(fit.learning_rate)
 
-    @jax.jit
-    def run(p0):
-        def step(carry, _):
-            p, s = carry
-            loss, g = jax.value_and_grad(loss_fn)(p, static, data, anchor, fit)
-            g = {k: jnp.zeros_like(v) if k in fit.frozen else v for k, v in g.items()}
-            upd, s = opt.update(g, s, p)
-            return (optax.apply_updates(p, upd), s), loss
+    def step(carry, _):
+        p, s = carry
+        loss, g = jax.value_and_grad(loss_fn)(p, static, data, p0, fit)
+        g = {k: jnp.zeros_like(v) if k in fit.frozen else v for k, v in g.items()}
+        upd, s = opt.update(g, s, p)
+        return (optax.apply_updates(p, upd), s), loss
 
-        (p, _), losses = jax.lax.scan(step, (p0, opt.init(p0)), None, length=fit.steps)
-        return p, losses
-
-    p, _ = run(anchor)
-    return p
+    (p, _), losses = jax.lax.scan(step, (p0, opt.init(p0)), None, length=fit.steps)
+    return p, losses
 
 
 def calibrate(
