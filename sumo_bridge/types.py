@@ -5,12 +5,13 @@ Arrays are per vehicle, in the Scenario's agent order (sorted by departure).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 ARRIVED = 0
-REMOVED_STUCK = 1
+REMOVED_STUCK = 1  # stood still too long (SumoConfig.stuck_rule), charged SumoConfig.stuck_penalty
+REMOVED_CAP = 2  # still driving or waiting at SumoConfig.max_sim_time_s, charged like stuck
 
 
 @dataclass(frozen=True)
@@ -22,7 +23,7 @@ class DayResult:
     mean_speed: np.ndarray  # [N] m/s, route_length / duration (NaN if removed)
     time_loss: np.ndarray  # [N] s, SUMO timeLoss
     depart_delay: np.ndarray  # [N] s, SUMO departDelay
-    status: np.ndarray  # [N] int8: ARRIVED or REMOVED_STUCK
+    status: np.ndarray  # [N] int8: ARRIVED, REMOVED_STUCK or REMOVED_CAP
     seed: int
     # Day statistics as SUMO's statistic output reports them (arrived vehicles).
     stat_mean_speed: float  # m/s, mean over arrived trips of routeLength / duration
@@ -32,6 +33,20 @@ class DayResult:
     n_removed: int
     sim_end_time: float  # s, SUMO time when the day ended
     wall_time: float  # s
+    leave_time: np.ndarray | None = None  # [N] s, SUMO time of arrival or removal
+
+    def same_as(self, other: DayResult) -> bool:
+        """Equal in everything SUMO decides (wall_time excluded); NaNs compare equal."""
+        for f in fields(self):
+            if f.name == "wall_time":
+                continue
+            a, b = getattr(self, f.name), getattr(other, f.name)
+            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+                if a is None or b is None or not np.array_equal(a, b, equal_nan=True):
+                    return False
+            elif a != b:
+                return False
+        return True
 
     @property
     def n(self) -> int:

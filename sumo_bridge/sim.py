@@ -1,0 +1,300 @@
+"""One authoritative SUMO day through libsumo, in this process.
+
+libsumo allows one simulation per process, so a `Simulator` owns it: the network is parsed by
+`libsumo.load` once per day (SUMO has no cheaper exact reset: `loadState` diverges from a fresh
+run), vehicles are added up front with their departure seconds (identical to RouteRL's
+second-by-second `vehicle.add`, checked against the CLI), and per-vehicle results come from
+SUMO's tripinfo output on /dev/shm. The tripinfo file is closed by pre-loading the next day
+right after the last step, so a day costs one network load, as SUMO's one-shot CLI run does.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import hashlib
+import os
+import shutil
+import tempfile
+import time
+import weakref
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from sumo_bridge.config import SumoConfig
+from sumo_bridge.tripinfo import insertion_order, parse_tripinfo, route_id, write_routes_file
+from sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayResult
+
+_ROUTE_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def scenario_key(scenario: object) -> str:
+    """Content hash of what SUMO sees of a Scenario (network file and route table)."""
+    key = _ROUTE_KEYS.get(scenario)
+    if key is None:
+        h = hashlib.sha256()
+        h.update(str(scenario.net_file).encode())  # type: ignore[attr-defined]
+        h.update("\n".join(scenario.edge_ids).encode())  # type: ignore[attr-defined]
+        h.update(np.ascontiguousarray(scenario.od_routes).tobytes())  # type: ignore[attr-defined]
+        key = h.hexdigest()[:16]
+        _ROUTE_KEYS[scenario] = key
+    return key
+
+
+def cav_mask(scenario: object, is_cav: np.ndarray | None) -> np.ndarray:
+    n = scenario.n_agents  # type: ignore[attr-defined]
+    if is_cav is None:
+        return np.array([k == "AV" for k in scenario.agent_kind], dtype=bool)  # type: ignore[attr-defined]
+    mask = np.asarray(is_cav, dtype=bool)
+    if mask.shape != (n,):
+        raise ValueError(f"is_cav has shape {mask.shape}; expected ({n},) in the Scenario's agent order")
+    return mask
+
+
+def check_choices(scenario: object, choices: np.ndarray) -> np.ndarray:
+    c = np.asarray(choices)
+    n, k = scenario.n_agents, scenario.k  # type: ignore[attr-defined]
+    if c.shape != (n,):
+        raise ValueError(f"choices has shape {c.shape}; expected ({n},) route indices in Scenario order")
+    if not np.issubdtype(c.dtype, np.integer) or c.min() < 0 or c.max() >= k:
+        raise ValueError(f"choices must be integer route indices in [0, {k}); got {c.dtype} "
+                         f"in [{c.min()}, {c.max()}]")
+    return c.astype(np.int64)
+
+
+@contextlib.contextmanager
+def redirect_fds(path: str | os.PathLike | None) -> Iterator[None]:
+    """Send this process's C-level stdout/stderr (SUMO's messages) to `path`, appending."""
+    if path is None:
+        yield
+        return
+    import sys
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    try:
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        yield
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for f in (fd, *saved):
+            os.close(f)
+
+
+class Simulator:
+    """Owns this process's libsumo simulation and runs days on it."""
+
+    def __init__(self, config: SumoConfig | None = None, log_file: str | os.PathLike | None = None,
+                 redirect_output: bool = True) -> None:
+        self.config = config or SumoConfig()
+        self.log_file = str(log_file) if log_file else None
+        self.redirect_output = redirect_output and self.log_file is not None
+        base = self.config.shm_dir if os.path.isdir(self.config.shm_dir) else None
+        self.workdir = Path(tempfile.mkdtemp(prefix=f"urbjax-sumo-{os.getpid()}-", dir=base))
+        self._started = False
+        self._fresh: tuple | None = None  # load key of a loaded, not yet simulated state
+        self._trip_path: Path | None = None
+        self._n_loads = 0
+        atexit.register(self.close)
+
+    # --- SUMO control -------------------------------------------------------------------
+    def _routes_file(self, scenario: object) -> Path:
+        path = self.workdir / f"routes-{scenario_key(scenario)}.add.xml"
+        if not path.exists():
+            write_routes_file(path, scenario)
+        return path
+
+    def _load(self, key: tuple) -> None:
+        import libsumo
+
+        net_file, routes, seed = key
+        self._n_loads += 1
+        trip = self.workdir / f"trip-{self._n_loads}.xml"
+        adds = ",".join([str(routes), *self.config.additional_files])
+        args = ["-n", net_file, "-a", adds, "--tripinfo-output", str(trip),
+                *self.config.sumo_args(seed)]
+        if self.log_file and not self.redirect_output:
+            args += ["--error-log", self.log_file]
+        if self._started:
+            libsumo.load(args)
+        else:
+            libsumo.start(["sumo", *args])
+            self._started = True
+        self._fresh = key
+        self._trip_path = trip
+
+    def close(self) -> None:
+        if self._started:
+            import libsumo
+
+            with contextlib.suppress(Exception):
+                libsumo.close()
+            self._started = False
+        shutil.rmtree(self.workdir, ignore_errors=True)
+
+    # --- one day ------------------------------------------------------------------------
+    def run_day(self, scenario: object, choices: np.ndarray, *, seed: int,
+                is_cav: np.ndarray | None = None) -> DayResult:
+        with redirect_fds(self.log_file if self.redirect_output else None):
+            return self._run_day(scenario, choices, seed, is_cav)
+
+    def _run_day(self, scn: object, choices: np.ndarray, seed: int,
+                 is_cav: np.ndarray | None) -> DayResult:
+        import libsumo
+
+        t0 = time.perf_counter()
+        cfg = self.config
+        choices = check_choices(scn, choices)
+        cav = cav_mask(scn, is_cav)
+        key = (str(scn.net_file), str(self._routes_file(scn)), int(seed))  # type: ignore[attr-defined]
+        if self._fresh != key:
+            self._load(key)
+        self._fresh = None
+        trip_path = self._trip_path
+        assert trip_path is not None
+
+        ids = [str(int(a)) for a in scn.agent_id]  # type: ignore[attr-defined]
+        depart = np.asarray(scn.agent_depart, dtype=np.int64)  # type: ignore[attr-defined]
+        od = scn.agent_od  # type: ignore[attr-defined]
+        add = libsumo.vehicle.add
+        for i in insertion_order(depart, cav):
+            add(ids[i], route_id(od[i], choices[i]), typeID="AV" if cav[i] else "Human",
+                depart=str(int(depart[i])))
+
+        pos = {v: i for i, v in enumerate(ids)}
+        removed: dict[str, tuple[float, int]] = {}  # id -> (SUMO time, status)
+        last_depart = int(depart.max())
+        stuck, poll, cap = cfg.stuck_time_s, cfg.poll_every_s, cfg.max_sim_time_s
+        urb_rule = cfg.stuck_rule == "urb"
+        vehicle, simulation, step = libsumo.vehicle, libsumo.simulation, libsumo.simulationStep
+        watch: set[str] = set()
+        next_poll = 0.0
+        t = simulation.getTime()
+
+        def remove(v: str, status: int) -> None:
+            removed[v] = (t, status)
+            vehicle.remove(v, libsumo.constants.REMOVE_VAPORIZED)
+
+        while True:
+            if t >= next_poll:
+                running = vehicle.getIDList()
+                if urb_rule:
+                    watch = set()
+                    for v in running:
+                        if v in pos:
+                            w = vehicle.getWaitingTime(v)
+                            if w > stuck:
+                                remove(v, REMOVED_STUCK)
+                            elif w + poll > stuck:
+                                watch.add(v)
+                if t > last_depart and not any(v in pos and v not in removed for v in running) \
+                        and not any(v in pos for v in simulation.getPendingVehicles()):
+                    break  # only foreign vehicles left (e.g. a test's blocker)
+                next_poll = t + poll
+            elif watch:
+                for v in list(watch):
+                    try:
+                        w = vehicle.getWaitingTime(v)
+                    except libsumo.TraCIException:  # arrived meanwhile
+                        watch.discard(v)
+                        continue
+                    if w > stuck:
+                        remove(v, REMOVED_STUCK)
+                        watch.discard(v)
+            if t >= cap:
+                for v in (*vehicle.getIDList(), *simulation.getPendingVehicles()):
+                    if v in pos and v not in removed:
+                        remove(v, REMOVED_CAP)
+                break
+            step()
+            t = simulation.getTime()
+            if simulation.getMinExpectedNumber() == 0:
+                break
+
+        end_time = simulation.getTime()
+        teleports = int(float(simulation.getParameter("", "stats.teleports.total")))
+        self._load(key)  # closes this day's tripinfo; the next day with this seed starts from it
+        trips = parse_tripinfo(trip_path)
+        trip_path.unlink(missing_ok=True)
+        return self._result(scn, trips, removed, pos, depart, seed, teleports, end_time,
+                            time.perf_counter() - t0)
+
+    def _result(self, scn: object, trips: dict, removed: dict, pos: dict, depart: np.ndarray,
+                seed: int, teleports: int, end_time: float, wall: float) -> DayResult:
+        cfg = self.config
+        n = len(pos)
+        nan = np.full(n, np.nan)
+        leave, dur, length, loss, delay = nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy()
+        status = np.full(n, REMOVED_CAP, dtype=np.int8)  # overwritten for every vehicle seen
+        seen = np.zeros(n, dtype=bool)
+        for v, rec in trips.items():
+            i = pos.get(v)
+            if i is None:
+                continue
+            seen[i] = True
+            leave[i] = rec["arrival"]
+            length[i] = rec["routeLength"]
+            loss[i] = rec["timeLoss"]
+            delay[i] = rec["departDelay"]
+            if rec["vaporized"]:
+                status[i] = removed.get(v, (0.0, REMOVED_STUCK))[1]  # SUMO's teleport-removal
+            else:
+                status[i] = ARRIVED
+                dur[i] = rec["duration"]
+        for v, (t, st) in removed.items():  # removed before SUMO wrote a tripinfo (never inserted)
+            i = pos[v]
+            if not seen[i]:
+                leave[i], status[i], length[i], loss[i] = t, st, 0.0, np.nan
+                delay[i] = t - depart[i]
+        missing = ~seen & np.isnan(leave)
+        if missing.any():
+            raise RuntimeError(f"{int(missing.sum())} vehicle(s) have no SUMO result, e.g. "
+                               f"{[k for k, i in pos.items() if missing[i]][:5]}")
+        tt = (leave + cfg.tt_offset_s - depart) / 60.0
+        out = status != ARRIVED
+        if cfg.stuck_penalty == "urb":
+            tt[out] = scn.simulation_timesteps / 60.0  # type: ignore[attr-defined]
+        arrived = ~out
+        with np.errstate(invalid="ignore", divide="ignore"):
+            speed = np.where(arrived, length / dur, np.nan)
+        # SUMO's statistic output averages over every vehicle with a tripinfo (removed included).
+        w = seen
+        trip_dur = np.where(arrived, dur, leave - (depart + delay))
+        return DayResult(
+            travel_time=tt, duration=dur, route_length=length, mean_speed=speed, time_loss=loss,
+            depart_delay=delay, status=status, seed=int(seed),
+            stat_mean_speed=float(np.mean(length[w] / np.maximum(trip_dur[w], 1e-9))) if w.any() else 0.0,
+            stat_mean_route_length=float(np.mean(length[w])) if w.any() else 0.0,
+            stat_mean_duration=float(np.mean(trip_dur[w])) if w.any() else 0.0,
+            teleports=teleports, n_removed=int(out.sum()), sim_end_time=float(end_time),
+            wall_time=float(wall), leave_time=leave,
+        )
+
+
+_SIMULATOR: Simulator | None = None
+
+
+def get_simulator(config: SumoConfig | None = None, log_file: str | os.PathLike | None = None) -> Simulator:
+    """This process's Simulator (libsumo allows one), created or re-configured on demand."""
+    global _SIMULATOR
+    config = config or SumoConfig()
+    log = str(log_file) if log_file else None
+    if _SIMULATOR is None or _SIMULATOR.config != config or _SIMULATOR.log_file != log:
+        if _SIMULATOR is not None:
+            _SIMULATOR.close()
+        _SIMULATOR = Simulator(config, log)
+    return _SIMULATOR
+
+
+def run_day(scenario: object, choices: np.ndarray, *, seed: int, is_cav: np.ndarray | None = None,
+            config: SumoConfig | None = None, log_file: str | os.PathLike | None = None) -> DayResult:
+    """One SUMO day in this process: `choices[N]` route indices in the Scenario's agent order."""
+    return get_simulator(config, log_file).run_day(scenario, choices, seed=seed, is_cav=is_cav)

@@ -1,0 +1,47 @@
+"""SUMO files we read or write: tripinfo parsing and the per-scenario route file."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+_TRIP = re.compile(r"<tripinfo\s([^>]*)>")
+_ATTR = re.compile(r'([A-Za-z]+)="([^"]*)"')
+TRIP_FIELDS = ("depart", "departDelay", "arrival", "duration", "routeLength", "timeLoss")
+
+
+def parse_tripinfo(path: str | os.PathLike) -> dict[str, dict[str, object]]:
+    """{vehicle id: {field: float, 'vaporized': str}} for every <tripinfo> element."""
+    text = Path(path).read_text()
+    out: dict[str, dict[str, object]] = {}
+    for m in _TRIP.finditer(text):
+        attrs = dict(_ATTR.findall(m.group(1)))
+        rec: dict[str, object] = {k: float(attrs[k]) for k in TRIP_FIELDS}
+        rec["vaporized"] = attrs.get("vaporized", "")
+        out[attrs["id"]] = rec
+    return out
+
+
+def route_id(od: int, k: int) -> str:
+    return f"{int(od)}_{int(k)}"
+
+
+def write_routes_file(path: str | os.PathLike, scenario: object) -> None:
+    """vTypes Human/AV (SUMO defaults, as URB) and one route per (od, k), id '{od}_{k}'."""
+    lines = ["<routes>", '    <vType id="Human"/>', '    <vType id="AV"/>']
+    for od in range(scenario.n_od):  # type: ignore[attr-defined]
+        for k in range(scenario.k):  # type: ignore[attr-defined]
+            edges = " ".join(scenario.route_edge_ids(od, k))  # type: ignore[attr-defined]
+            lines.append(f'    <route id="{route_id(od, k)}" edges="{edges}"/>')
+    lines.append("</routes>\n")
+    tmp = Path(f"{path}.tmp{os.getpid()}")
+    tmp.write_text("\n".join(lines))
+    os.replace(tmp, path)
+
+
+def insertion_order(depart: np.ndarray, is_cav: np.ndarray) -> np.ndarray:
+    """RouteRL's order: by departure second, humans before CAVs, then Scenario order."""
+    return np.lexsort((np.arange(depart.shape[0]), is_cav.astype(np.int8), depart))
