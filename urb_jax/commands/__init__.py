@@ -6,4 +6,6 @@ To add a command, write a module here with `register` and list it in `COMMANDS`.
 COMMANDS = [
     "urb_jax.commands.networks",
     "urb_jax.commands.scenario",
+    "urb_jax.commands.baseline",
+    "urb_jax.commands.leaderboard",
 ]
