@@ -118,7 +118,6 @@ def run_experiment(
     root = jax.random.PRNGKey(env_seed)
     fft = jnp.asarray(scenario.fft, dtype=jnp.float32)
     valid = np.asarray(scenario.route_valid)
-    humans = _init(jax.random.fold_in(root, 0x1), fft, jnp.asarray(valid), hp)
     bar = _progress(H + T + E) if progress else None
 
     def simulate(day: int, phase: str, choices: np.ndarray, is_cav: np.ndarray) -> Any:
@@ -129,16 +128,7 @@ def run_experiment(
         return res
 
     # Phase 1: human learning.
-    no_cav = np.zeros(n, dtype=bool)
-    for day in range(1, H + 1):
-        kd = jax.random.fold_in(root, day)
-        k_act, k_learn = jax.random.split(kd)
-        choices = np.asarray(_act(k_act, humans, hp, fft))
-        res = simulate(day, PHASE_HUMAN, choices, no_cav)
-        times = jnp.asarray(res.travel_time, dtype=jnp.float32)
-        humans = _learn(k_learn, humans, jnp.asarray(choices), times, hp)
-        if sink is not None:
-            sink(DayRecord(day, PHASE_HUMAN, choices, no_cav, res, -np.asarray(res.travel_time), None, sumo))
+    humans = train_humans(scenario, hp, H, env_seed=env_seed, simulate=simulate, sink=sink, sumo=sumo)
 
     # Mutation.
     is_cav = draw_cavs(env_seed, n, task.ratio_machines)
@@ -179,6 +169,27 @@ def run_experiment(
     if bar is not None:
         bar.close()
     return ExperimentOutcome(is_cav, humans, pstate, H + T + E, H, T, E)
+
+
+def train_humans(scenario: Scenario, hp: HumanParams, days: int, *, env_seed: int,
+                 simulate: Callable[[int, str, np.ndarray, np.ndarray], Any],
+                 sink: Callable[[DayRecord], None] | None = None, sumo: bool = True) -> HumanState:
+    """The human learning phase: `days` days of humans only; returns the trained knowledge.
+    `simulate(day, phase, choices, is_cav)` returns the day's DayResult."""
+    root = jax.random.PRNGKey(env_seed)
+    n = scenario.n_agents
+    fft = jnp.asarray(scenario.fft, dtype=jnp.float32)
+    humans = _init(jax.random.fold_in(root, 0x1), fft, jnp.asarray(scenario.route_valid), hp)
+    no_cav = np.zeros(n, dtype=bool)
+    for day in range(1, days + 1):
+        k_act, k_learn = jax.random.split(jax.random.fold_in(root, day))
+        choices = np.asarray(_act(k_act, humans, hp, fft))
+        res = simulate(day, PHASE_HUMAN, choices, no_cav)
+        times = jnp.asarray(res.travel_time, dtype=jnp.float32)
+        humans = _learn(k_learn, humans, jnp.asarray(choices), times, hp)
+        if sink is not None:
+            sink(DayRecord(day, PHASE_HUMAN, choices, no_cav, res, -np.asarray(res.travel_time), None, sumo))
+    return humans
 
 
 def _cav_decisions(policy: CavPolicy, pstate: Any, key: jax.Array, spec: ObservationSpec,
