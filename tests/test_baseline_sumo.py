@@ -16,6 +16,7 @@ def test_aon_baseline_on_sumo(tmp_path, grid_scenario):
     out = run_baseline(model="aon", results_dir=str(tmp_path), progress=False,
                        task_overrides={"human_learning_episodes": 5, "training_eps": 2, "test_eps": 3})
     rec = read_records(out["folder"])
+    assert (out["folder"] / "sumo.log").exists()  # SUMO's messages are kept with the run
     assert sorted(rec["day"].unique()) == list(range(1, 11)) and rec["sumo"].all()
     assert (rec["travel_time"] > 0).all() and (rec.loc[rec.status == 0, "speed"] > 0).all()
     # records hold what SUMO returns: re-simulating day 1's choices gives the same times

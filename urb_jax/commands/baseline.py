@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import sys
 import time
 from pathlib import Path
@@ -89,6 +90,10 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     }
     write_json(folder / "exp_config.json", config)
     writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
+    if day_fn is None:  # SUMO's warnings go to the run's sumo.log, not the terminal
+        from sumo_bridge import run_day
+
+        day_fn = functools.partial(run_day, log_file=folder / "sumo.log")
     run_experiment(scn, task, env, policy, env_seed=env_seed, day_fn=day_fn, sink=writer,
                    progress=progress)
     writer.close()
