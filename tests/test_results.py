@@ -98,3 +98,30 @@ def test_cli_refusal_is_a_clean_error(tmp_path, capsys):
     (tmp_path / "taken").mkdir()
     code = main(["baseline", "--results-dir", str(tmp_path), "--id", "taken", "--no-progress"])
     assert code == 2 and "already exist" in capsys.readouterr().err
+
+
+def test_human_phase_replay_matches_a_fresh_run(tmp_path):
+    """A random run replaying an aon run's human phase: no SUMO calls for days 1..H, identical
+    human-phase records and t_pre; a tampered source is refused."""
+    from urb_jax.errors import UrbJaxError
+
+    src = run_baseline(model="aon", results_dir=str(tmp_path), exp_id="src", progress=False,
+                       day_fn=FakeDay(), task_overrides=TINY)
+    fresh = run_baseline(model="random", results_dir=str(tmp_path), exp_id="fresh", progress=False,
+                         day_fn=FakeDay(), task_overrides=TINY)
+    fake = FakeDay()
+    replayed = run_baseline(model="random", results_dir=str(tmp_path), exp_id="replayed", progress=False,
+                            day_fn=fake, task_overrides=TINY, human_phase_from="src")
+    assert len(fake.calls) == 2 + 2  # training + test days only
+    a, b = read_records(fresh["folder"]), read_records(replayed["folder"])
+    pd.testing.assert_frame_equal(a, b)
+    assert replayed["metrics"]["t_pre"] == src["metrics"]["t_pre"]
+    with pytest.raises(UrbJaxError, match="env_seed"):
+        run_baseline(model="random", results_dir=str(tmp_path), exp_id="other_seed", env_seed=5,
+                     progress=False, day_fn=FakeDay(), task_overrides=TINY, human_phase_from="src")
+    rec = read_records(src["folder"])
+    rec.loc[(rec.day == 2) & (rec.agent == rec.agent.iloc[0]), "action"] += 1
+    rec.to_parquet(src["folder"] / "records.parquet")
+    with pytest.raises(UrbJaxError, match="day 2"):
+        run_baseline(model="random", results_dir=str(tmp_path), exp_id="tampered", progress=False,
+                     day_fn=FakeDay(), task_overrides=TINY, human_phase_from="src")

@@ -25,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing results with this id")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--human-phase-from", default=None, metavar="EXP_ID",
+                        help="reuse the recorded human phase of run EXP_ID in --results-dir (same network, "
+                             "seed, human model and demand; choices are checked day by day)")
     parser.set_defaults(func=run)
 
 
@@ -33,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
         model=args.model, net=args.net, task_conf=args.task_conf, env_conf=args.env_conf,
         env_seed=args.env_seed, exp_id=args.id, networks_dir=args.networks_dir,
         results_dir=args.results_dir, overwrite=args.overwrite, progress=not args.no_progress,
+        human_phase_from=args.human_phase_from,
     )
     m = out["metrics"]
     print(f"results: {out['folder']}  ({out['wall_time_s']:.1f} s, {out['days']} SUMO days)")
@@ -44,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
 def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str = "config1",
                  env_conf: str = "config1", env_seed: int = 42, exp_id: str | None = None,
                  networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
-                 progress: bool = True, day_fn: Any = None, task_overrides: dict | None = None) -> dict:
+                 progress: bool = True, day_fn: Any = None, task_overrides: dict | None = None,
+                 human_phase_from: str | None = None) -> dict:
     """Run one baseline experiment and write results/<exp_id>/. Returns metrics and paths."""
     from urb_jax import __version__
     from urb_jax.baselines import make_baseline
@@ -86,7 +91,7 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
         "num_agents": scn.n_agents, "num_machines": n_cav, "exp_type": "normal",
         "human_days": task.human_learning_episodes, "training_days": task.training_eps,
         "versions": versions(), "urb_jax_version": __version__, "command": sys.argv,
-        "status": "running",
+        "status": "running", "human_phase_from": human_phase_from,
     }
     write_json(folder / "exp_config.json", config)
     writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
@@ -94,6 +99,11 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
         from sumo_bridge import run_day
 
         day_fn = functools.partial(run_day, log_file=folder / "sumo.log")
+    if human_phase_from:
+        from urb_jax.replay import load_replay
+
+        day_fn = load_replay(Path(results_dir) / human_phase_from, config, scn.agent_id,
+                             task.human_learning_episodes, day_fn)
     run_experiment(scn, task, env, policy, env_seed=env_seed, day_fn=day_fn, sink=writer,
                    progress=progress)
     writer.close()
