@@ -184,13 +184,14 @@ def obs_scale(env: RoutingEnv) -> np.ndarray:
 
 
 class AgentNet(NamedTuple):
-    """Functional per-CAV network: init(key) -> params; apply(params, obs[..., C, D]) -> [..., C, out].
+    """Functional per-CAV network: init(key) -> params; apply(params, obs[..., C, D]) -> [..., C, out],
+    or apply(params, obs[..., n, D], idx[n]) for the subset `idx` of the CAV axis.
 
     Shared parameters: one set for all CAVs (with OD embedding). Per-agent: every leaf has a
     leading [C] axis and the network is vmapped over it."""
 
     init: Callable[[jax.Array], Any]
-    apply: Callable[[Any, jnp.ndarray], jnp.ndarray]
+    apply: Callable[..., jnp.ndarray]
 
 
 def make_agent_net(
@@ -207,19 +208,25 @@ def make_agent_net(
         def init(key: jax.Array) -> Any:
             return net.init(key, jnp.zeros((n_cav, d)), od)
 
-        def apply(params: Any, obs: jnp.ndarray) -> jnp.ndarray:
-            return net.apply(params, obs / scale, od)
+        def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            return net.apply(params, obs / scale, od if idx is None else od[idx])
     else:
         def init(key: jax.Array) -> Any:
             keys = jax.random.split(key, n_cav)
             return jax.vmap(lambda k, o: net.init(k, jnp.zeros((d,)), o))(keys, od)
 
-        def apply(params: Any, obs: jnp.ndarray) -> jnp.ndarray:
+        def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
             x = jnp.moveaxis(obs / scale, -2, 0)  # [C, ..., D]
-            y = jax.vmap(lambda p, xi, o: net.apply(p, xi, o))(params, x, od)
+            p, o = (params, od) if idx is None else (take_agents(params, idx), od[idx])
+            y = jax.vmap(lambda pi, xi, oi: net.apply(pi, xi, oi))(p, x, o)
             return jnp.moveaxis(y, 0, -2)
 
     return AgentNet(init, apply)
+
+
+def take_agents(tree: Any, idx: jnp.ndarray | None) -> Any:
+    """Rows `idx` of the leading (CAV) axis of every leaf; everything when idx is None."""
+    return tree if idx is None else jax.tree_util.tree_map(lambda x: x[idx], tree)
 
 
 def hidden_layers(depth: int, cells: int) -> tuple[int, ...]:
@@ -310,13 +317,43 @@ class Day(NamedTuple):
     time_human: jnp.ndarray  # []
 
 
-Policy = Callable[[jax.Array, jnp.ndarray], jnp.ndarray]
+# policy(key, obs[n, D], idx[n] | None) -> actions[n]: idx names the CAVs (None = all C, the
+# signature env.act_in_order and SUMO days use).
+Policy = Callable[..., jnp.ndarray]
 
 
-def env_day(env: RoutingEnv, policy: Policy, key: jax.Array, state: EnvState) -> tuple[EnvState, Day]:
-    """One day of one env: CAVs act in departure order (env.act_in_order), then simulate."""
+def dependency_levels(env: RoutingEnv) -> tuple[np.ndarray, ...]:
+    """CAV-axis indices by level: a CAV's level is the number of distinct earlier departure times
+    among CAVs of its observation group, so its observation depends only on lower levels."""
+    scn = env.scenario
+    group = scn.agent_od if env.obs_spec.kind != "global_previous_agents" else np.zeros(scn.n_agents, int)
+    g, t = group[env.cav_index], scn.agent_depart[env.cav_index]
+    level = np.zeros(env.n_cavs, dtype=np.int64)
+    for grp in np.unique(g):
+        members = np.flatnonzero(g == grp)
+        level[members] = np.searchsorted(np.unique(t[members]), t[members])
+    return tuple(np.flatnonzero(level == lv) for lv in range(int(level.max(initial=-1)) + 1))
+
+
+def act_by_levels(env: RoutingEnv, key: jax.Array, state: EnvState, policy: Policy,
+                  levels: tuple[np.ndarray, ...] | None = None) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Exact departure-order choices like env.act_in_order, but each CAV's network runs once:
+    level by level (static index sets, unrolled), observing the lower levels' choices. Costs C
+    policy evaluations per day instead of depth x C."""
+    levels = dependency_levels(env) if levels is None else levels
+    actions = state.cav_actions
+    for lv, idx in enumerate(levels):
+        obs = env.observe(state, actions)
+        chosen = policy(jax.random.fold_in(key, lv), obs[idx], jnp.asarray(idx))
+        actions = actions.at[idx].set(chosen.astype(jnp.int32))
+    return env.observe(state, actions), actions
+
+
+def env_day(env: RoutingEnv, policy: Policy, key: jax.Array, state: EnvState,
+            levels: tuple[np.ndarray, ...] | None = None) -> tuple[EnvState, Day]:
+    """One day of one env: CAVs act in departure order (act_by_levels), then simulate."""
     k_act, k_step = jax.random.split(key)
-    obs, actions = env.act_in_order(k_act, state, policy)
+    obs, actions = act_by_levels(env, k_act, state, policy, levels)
     next_obs, state, rewards, dones, info = env.step(k_step, state, actions)
     return state, Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"])
 
@@ -325,9 +362,11 @@ def collect(env: RoutingEnv, policy: Policy, key: jax.Array, states: EnvState, n
             ) -> tuple[EnvState, Day]:
     """n_days days in each of B envs (states batched [B]); returns Day arrays [n_days, B, ...]."""
     n_envs = jax.tree_util.tree_leaves(states)[0].shape[0]
+    levels = dependency_levels(env)
 
     def body(states: EnvState, k: jax.Array) -> tuple[EnvState, Day]:
-        return jax.vmap(lambda kk, s: env_day(env, policy, kk, s))(jax.random.split(k, n_envs), states)
+        keys = jax.random.split(k, n_envs)
+        return jax.vmap(lambda kk, s: env_day(env, policy, kk, s, levels))(keys, states)
 
     return jax.lax.scan(body, states, jax.random.split(key, n_days))
 

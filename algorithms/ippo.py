@@ -39,6 +39,7 @@ from algorithms.common import (
     minibatch_days,
     obs_scale,
     reset_envs,
+    take_agents,
 )
 from urb_jax.env import EnvState, RoutingEnv
 
@@ -103,8 +104,8 @@ def make_policy(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
     mask = jnp.asarray(env.action_mask)
 
     def policy_for(params: Any, sample: bool = True):
-        def policy(key: jax.Array, obs: jnp.ndarray) -> jnp.ndarray:
-            logits = masked(actor.apply(params["actor"], obs), mask)
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            logits = masked(actor.apply(params["actor"], obs, idx), take_agents(mask, idx))
             if sample:
                 return jax.random.categorical(key, logits, axis=-1).astype(jnp.int32)
             return jnp.argmax(logits, axis=-1).astype(jnp.int32)

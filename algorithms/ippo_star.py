@@ -30,6 +30,7 @@ from algorithms.common import (
     masked,
     obs_scale,
     reset_envs,
+    take_agents,
 )
 from urb_jax.env import EnvState, RoutingEnv
 
@@ -63,9 +64,9 @@ def make_network(config: IPPOStarConfig, env: RoutingEnv):
     def init(key: jax.Array) -> Any:
         return jax.vmap(lambda k: mlp.init(k, jnp.zeros((env.obs_size,))))(jax.random.split(key, env.n_cavs))
 
-    def apply(params: Any, obs: jnp.ndarray) -> jnp.ndarray:
+    def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
         x = jnp.moveaxis(obs / scale, -2, 0)
-        return jnp.moveaxis(jax.vmap(mlp.apply)(params, x), 0, -2)
+        return jnp.moveaxis(jax.vmap(mlp.apply)(take_agents(params, idx), x), 0, -2)
 
     return init, apply, mlp, scale
 
@@ -76,8 +77,8 @@ def make_policy(config: IPPOStarConfig, env: RoutingEnv):
     mask = jnp.asarray(env.action_mask)
 
     def policy_for(params: Any, sample: bool = True):
-        def policy(key: jax.Array, obs: jnp.ndarray) -> jnp.ndarray:
-            logits = masked(apply(params, obs), mask)
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            logits = masked(apply(params, obs, idx), take_agents(mask, idx))
             if sample:
                 return jax.random.categorical(key, logits, axis=-1).astype(jnp.int32)
             return jnp.argmax(logits, axis=-1).astype(jnp.int32)

@@ -32,6 +32,7 @@ from algorithms.common import (
     obs_scale,
     reset_envs,
     select_tree,
+    take_agents,
 )
 from urb_jax.env import EnvState, RoutingEnv
 
@@ -64,9 +65,9 @@ def make_network(config: IQLStarConfig, env: RoutingEnv):
     def init(key: jax.Array) -> Any:
         return jax.vmap(lambda k: mlp.init(k, jnp.zeros((env.obs_size,))))(jax.random.split(key, env.n_cavs))
 
-    def apply(params: Any, obs: jnp.ndarray) -> jnp.ndarray:
+    def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
         x = jnp.moveaxis(obs / scale, -2, 0)
-        return jnp.moveaxis(jax.vmap(mlp.apply)(params, x), 0, -2)
+        return jnp.moveaxis(jax.vmap(mlp.apply)(take_agents(params, idx), x), 0, -2)
 
     return init, apply, mlp, scale
 
@@ -77,7 +78,10 @@ def make_policy(config: IQLStarConfig, env: RoutingEnv):
     mask = jnp.asarray(env.action_mask)
 
     def policy_for(params: Any, eps: float | jnp.ndarray = 0.0):
-        return lambda key, obs: eps_greedy(key, apply(params, obs), mask, eps)
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            return eps_greedy(key, apply(params, obs, idx), take_agents(mask, idx), eps)
+
+        return policy
 
     return policy_for
 

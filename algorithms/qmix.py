@@ -41,6 +41,7 @@ from algorithms.common import (
     polyak,
     reset_envs,
     select_tree,
+    take_agents,
 )
 from urb_jax.env import EnvState, RoutingEnv
 
@@ -106,7 +107,10 @@ def make_policy(config: MixerConfig, env: RoutingEnv):
     mask = jnp.asarray(env.action_mask)
 
     def policy_for(params: Any, eps: float | jnp.ndarray = 0.0):
-        return lambda key, obs: eps_greedy(key, net.apply(params["agent"], obs), mask, eps)
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            return eps_greedy(key, net.apply(params["agent"], obs, idx), take_agents(mask, idx), eps)
+
+        return policy
 
     return policy_for
 

@@ -34,14 +34,14 @@ CASES = {
     "ippo_star": (ippo_star, IPPOStarConfig(num_episodes=250, batch_size=8, update_every=1, lr=3e-3,
                                             widths=(32,), num_envs=4), "selfish"),
 }
-# Cooperative value decomposition over 160 CAVs with one team reward needs far more days than a
+# Cooperative value decomposition over 40 CAVs with one team reward needs far more days than a
 # unit test can afford: for QMIX/VDN we check the run and its losses, not an improvement.
 LEARNS_FAST = {"iql", "ippo", "mappo", "iql_star", "ippo_star"}
 
 
 @pytest.fixture(scope="module")
 def envs(grid_scenario):
-    return {b: make_env(grid_scenario, behaviour=b) for b in ("selfish", "cooperative")}
+    return {b: make_env(grid_scenario, cav_share=0.1, behaviour=b) for b in ("selfish", "cooperative")}
 
 
 @pytest.mark.parametrize("name", list(CASES))
