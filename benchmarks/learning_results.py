@@ -81,6 +81,8 @@ def main() -> None:
     parser.add_argument("--algs", nargs="+", default=list(MODULES))
     parser.add_argument("--config", default="config1")
     parser.add_argument("--days", type=int, default=None, help="override training days (per env)")
+    parser.add_argument("--num-envs", nargs="*", default=[], metavar="ALG=B",
+                        help="train ALG with B parallel environments (default 1, URB's setting)")
     parser.add_argument("--human-days", type=int, default=200)
     parser.add_argument("--test-days", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
@@ -90,6 +92,7 @@ def main() -> None:
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     key = jax.random.PRNGKey(args.seed)
+    num_envs = {k: int(v) for k, v in (item.split("=") for item in args.num_envs)}
     rows, curves = [], {}
     for net in args.networks:
         scn = load_scenario(net, networks_dir=args.networks_dir)
@@ -114,6 +117,7 @@ def main() -> None:
                 else:
                     n_iters = max(1, args.days // config.agent_frames_per_batch)
                     config = dataclasses.replace(config, n_iters=n_iters)
+            config = dataclasses.replace(config, num_envs=num_envs.get(alg, 1))
             env = envs[BEHAVIOUR.get(alg, "selfish")]
             t0 = time.perf_counter()
             result = jax.block_until_ready(jax.jit(MODULES[alg].make_train(config, env))(key))
@@ -122,12 +126,13 @@ def main() -> None:
             m = evaluate(env, test_policy(alg, config, env, params), key, args.test_days)
             t_cav = float(m["time_cav"])
             x = training_days(alg, config)
-            curves[(net, alg)] = (x, np.asarray(result["metrics"]["time_cav"]))
+            curves[(net, alg)] = (x * config.num_envs, np.asarray(result["metrics"]["time_cav"]))
+            total_days = int(x[-1]) * config.num_envs
             rows.append({"network": net, "algorithm": alg, "time_cav": t_cav,
-                         "time_human": float(m["time_human"]), "train_s": train_s, "days": int(x[-1])})
+                         "time_human": float(m["time_human"]), "train_s": train_s, "days": total_days})
             print(f"  {alg:10s} {BEHAVIOUR.get(alg, 'selfish'):12s} CAV {t_cav:.3f} min "
                   f"({100 * (t_cav / base['aon'] - 1):+.2f}% vs AON), humans {float(m['time_human']):.3f}, "
-                  f"{int(x[-1])} days in {train_s:.0f} s (incl. compile)", flush=True)
+                  f"{total_days} days (B={config.num_envs}) in {train_s:.0f} s (incl. compile)", flush=True)
         curves[(net, "_base")] = base
     (out / "learning_results.json").write_text(json.dumps(rows, indent=1))
     plot(curves, args.networks, out / "learning_curves.png")
@@ -162,7 +167,7 @@ def plot(curves: dict, networks: list[str], path: Path) -> None:
             if name in base:
                 ax.axhline(base[name], color="k", ls=style, lw=1, label=name)
         ax.set_title(f"{net} (training, exploring policies)")
-        ax.set_xlabel("training day")
+        ax.set_xlabel("training days (all environments)")
         ax.set_ylabel("mean CAV travel time (min)")
         ax.legend(fontsize=7)
     fig.tight_layout()

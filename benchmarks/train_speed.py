@@ -37,21 +37,38 @@ def sized_config(alg: str, config, n_envs: int, min_days: int):
     """The config with num_envs = B and just enough iterations for >= min_days training days."""
     if alg == "iql_star":
         per_iter = config.update_every * n_envs
-        iters = max(2, math.ceil(min_days / per_iter))
+        iters = max(1, math.ceil(min_days / per_iter))
         config = dataclasses.replace(config, num_envs=n_envs, num_episodes=iters * config.update_every)
         return config, iters * per_iter
     if alg == "ippo_star":
         config = dataclasses.replace(config, num_envs=n_envs)
         per_iter = days_per_update(config) * n_envs
-        iters = max(2, math.ceil(min_days / per_iter))
+        iters = max(1, math.ceil(min_days / per_iter))
         return dataclasses.replace(config, num_episodes=iters * days_per_update(config)), iters * per_iter
     per_iter = config.agent_frames_per_batch * n_envs
-    iters = max(2, math.ceil(min_days / per_iter))
+    iters = max(1, math.ceil(min_days / per_iter))
     return dataclasses.replace(config, num_envs=n_envs, n_iters=iters), iters * per_iter
 
 
-def measure(alg: str, env, n_envs: int, config_name: str, min_days: int) -> dict[str, float]:
-    config, days = sized_config(alg, load_algo_config(alg, config_name), n_envs, min_days)
+def with_network(alg: str, config, net: str | None):
+    """Override every network size with DEPTHxCELLS (e.g. 2x64) for a reduced-size comparison."""
+    if net is None:
+        return config
+    depth, cells = (int(v) for v in net.lower().split("x"))
+    if alg in ("iql_star", "ippo_star"):
+        return dataclasses.replace(config, widths=(cells,) * depth)
+    sizes = {"mlp_depth": depth, "mlp_cells": cells}
+    if alg in ("ippo", "mappo"):
+        sizes |= {"critic_depth": depth, "critic_cells": cells}
+    if alg == "qmix":
+        sizes |= {"mixing_embed_dim": cells}
+    return dataclasses.replace(config, **sizes)
+
+
+def measure(alg: str, env, n_envs: int, config_name: str, min_days: int, net: str | None = None
+            ) -> dict[str, float]:
+    config = with_network(alg, load_algo_config(alg, config_name), net)
+    config, days = sized_config(alg, config, n_envs, min_days)
     train = MODULES[alg].make_train(config, env)
     key = jax.random.PRNGKey(0)
     t0 = time.perf_counter()
@@ -69,9 +86,12 @@ def main() -> None:
     parser.add_argument("--envs", nargs="+", type=int, default=[1, 64])
     parser.add_argument("--config", default="config1")
     parser.add_argument("--min-days", type=int, default=200, help="training days per measurement (at least)")
+    parser.add_argument("--net", default=None, help="override network sizes, DEPTHxCELLS (e.g. 2x64)")
+    parser.add_argument("--skip", nargs="*", default=[], help="NETWORK:ALG:B combinations to leave out")
     parser.add_argument("--networks-dir", default=str(NETWORKS_DIR) if NETWORKS_DIR.is_dir() else None)
     args = parser.parse_args()
-    print(f"jax {jax.__version__} on {jax.devices()[0].platform}; URB {args.config}; BPR stand-in; 40% CAVs")
+    print(f"jax {jax.__version__} on {jax.devices()[0].platform}; URB {args.config}"
+          f"{'' if args.net is None else ' with networks ' + args.net}; BPR stand-in; 40% CAVs")
     print(f"{'network':18s} {'alg':10s} {'B':>3s} {'CAVs':>5s} {'depth':>5s} {'compile s':>9s} "
           f"{'days':>6s} {'run s':>7s} {'days/s':>8s}")
     for net in args.networks:
@@ -80,7 +100,10 @@ def main() -> None:
         for alg in args.algs:
             env = envs[BEHAVIOUR.get(alg, "selfish")]
             for n_envs in args.envs:
-                r = measure(alg, env, n_envs, args.config, args.min_days)
+                if f"{net}:{alg}:{n_envs}" in args.skip:
+                    print(f"{net:18s} {alg:10s} {n_envs:3d}  skipped", flush=True)
+                    continue
+                r = measure(alg, env, n_envs, args.config, args.min_days, args.net)
                 print(f"{net:18s} {alg:10s} {n_envs:3d} {env.n_cavs:5d} {env.depth:5d} {r['compile_s']:9.1f} "
                       f"{r['days']:6d} {r['run_s']:7.2f} {r['days_per_s']:8.1f}", flush=True)
 
