@@ -371,6 +371,42 @@ def collect(env: RoutingEnv, policy: Policy, key: jax.Array, states: EnvState, n
     return jax.lax.scan(body, states, jax.random.split(key, n_days))
 
 
+class Learner(NamedTuple):
+    """An algorithm as pieces the trainers drive (`make_train` scans `iteration`; the hybrid trainer
+    mixes surrogate iterations with updates on SUMO days).
+
+    init(key) -> runner; iteration(runner, key) -> (runner, metrics): collect on the runner's envs,
+    then update; update_from_days(runner, days[T, B, ...], key) -> (runner, metrics): one update on
+    given days (e.g. SUMO days), env states untouched; policy(runner, explore) -> Policy (explore
+    False: the frozen test policy); n_iters: iterations `make_train` runs; days_per_iter: days
+    collected per env per iteration."""
+
+    init: Callable[[jax.Array], Any]
+    iteration: Callable[[Any, jax.Array], tuple[Any, dict[str, jnp.ndarray]]]
+    update_from_days: Callable[[Any, Day, jax.Array], tuple[Any, dict[str, jnp.ndarray]]]
+    policy: Callable[[Any, bool], Policy]
+    n_iters: int
+    days_per_iter: int
+
+
+def scan_train(learner: Learner, n_keys: int) -> Callable[[jax.Array], dict[str, Any]]:
+    """train(key): init, then `n_iters` iterations in one lax.scan on the last of `n_keys` splits
+    of the key (the split `init` also makes, so init and loop keys never overlap)."""
+    def train(key: jax.Array) -> dict[str, Any]:
+        runner = learner.init(key)
+        k_loop = jax.random.split(key, n_keys)[-1]
+        runner, metrics = jax.lax.scan(learner.iteration, runner, jax.random.split(k_loop, learner.n_iters))
+        return {"runner_state": runner, "metrics": metrics}
+
+    return train
+
+
+def days_shape(days: Any) -> tuple[int, int]:
+    """(T, B) of Day arrays [T, B, ...]."""
+    leaf = jax.tree_util.tree_leaves(days)[0]
+    return int(leaf.shape[0]), int(leaf.shape[1])
+
+
 def reset_envs(env: RoutingEnv, key: jax.Array, n_envs: int) -> EnvState:
     _, states = jax.vmap(env.reset)(jax.random.split(key, n_envs))
     return states

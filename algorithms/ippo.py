@@ -27,9 +27,11 @@ import optax
 from algorithms.common import (
     MLP,
     Day,
+    Learner,
     PPOConfig,
     collect,
     day_metrics,
+    days_shape,
     entropy,
     flatten_days,
     gae,
@@ -39,6 +41,7 @@ from algorithms.common import (
     minibatch_days,
     obs_scale,
     reset_envs,
+    scan_train,
     take_agents,
 )
 from urb_jax.env import EnvState, RoutingEnv
@@ -115,14 +118,11 @@ def make_policy(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
     return policy_for
 
 
-def make_train(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
+def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) -> Learner:
     actor, critic_init, critic_apply = make_networks(config, env, centralised)
     policy_for = make_policy(config, env, centralised)
     mask = jnp.asarray(env.action_mask)
     n_envs, n_days = config.num_envs, config.agent_frames_per_batch
-    total = n_days * n_envs
-    mb_days = min(minibatch_days(config.minibatch_size, env.n_cavs), total)
-    n_minibatches = max(1, total // mb_days)
     tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
 
     def loss_fn(params: Any, batch: Batch):
@@ -130,44 +130,55 @@ def make_train(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
         values = critic_apply(params["critic"], batch.obs)
         return ppo_loss(logits, values, batch, config.clip_epsilon, config.entropy_eps, config.critic_coef)
 
-    def train(key: jax.Array) -> dict[str, Any]:
-        k_actor, k_critic, k_env, k_loop = jax.random.split(key, 4)
+    def init(key: jax.Array) -> RunnerState:
+        k_actor, k_critic, k_env, _ = jax.random.split(key, 4)
         params = {"actor": actor.init(k_actor), "critic": critic_init(k_critic)}
-        runner = RunnerState(params, tx.init(params), reset_envs(env, k_env, n_envs))
+        return RunnerState(params, tx.init(params), reset_envs(env, k_env, n_envs))
 
-        def iteration(runner: RunnerState, key: jax.Array):
-            k_col, k_upd = jax.random.split(key)
-            params = runner.params
-            env_states, days = collect(env, policy_for(params), k_col, runner.env_states, n_days)
-            days: Day
-            logits = masked(actor.apply(params["actor"], days.obs), mask)
-            log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), days.action[..., None], -1)[..., 0]
-            values = critic_apply(params["critic"], days.obs)  # [T, B, C]
-            last_value = critic_apply(params["critic"], days.next_obs[-1])
-            adv, targets = gae(days.reward, values, days.done, last_value, config.gamma, config.lmbda)
-            if config.normalize_advantage:  # over the iteration's batch: see module docstring
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-            data = flatten_days(Batch(days.obs, days.action, log_prob, adv, targets))
+    def policy(runner: RunnerState, explore: bool = True):
+        return policy_for(runner.params, sample=explore)
 
-            def epoch(carry, k):
-                perm = jax.random.permutation(k, total)[: n_minibatches * mb_days]
-                shuffled = jax.tree_util.tree_map(
-                    lambda x: x[perm].reshape(n_minibatches, mb_days, *x.shape[1:]), data)
+    def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
+        """On-policy: `days` must have been played by `policy(runner, True)`."""
+        t, b = days_shape(days)
+        total = t * b
+        mb_days = min(minibatch_days(config.minibatch_size, env.n_cavs), total)
+        n_minibatches = max(1, total // mb_days)
+        params = runner.params
+        logits = masked(actor.apply(params["actor"], days.obs), mask)
+        log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), days.action[..., None], -1)[..., 0]
+        values = critic_apply(params["critic"], days.obs)  # [T, B, C]
+        last_value = critic_apply(params["critic"], days.next_obs[-1])
+        adv, targets = gae(days.reward, values, days.done, last_value, config.gamma, config.lmbda)
+        if config.normalize_advantage:  # over the iteration's batch: see module docstring
+            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        data = flatten_days(Batch(days.obs, days.action, log_prob, adv, targets))
 
-                def sgd_step(carry, batch: Batch):
-                    params, opt_state = carry
-                    (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, batch)
-                    updates, opt_state = tx.update(grads, opt_state, params)
-                    return (optax.apply_updates(params, updates), opt_state), aux | {"loss": loss}
+        def epoch(carry, k):
+            perm = jax.random.permutation(k, total)[: n_minibatches * mb_days]
+            shuffled = jax.tree_util.tree_map(
+                lambda x: x[perm].reshape(n_minibatches, mb_days, *x.shape[1:]), data)
 
-                return jax.lax.scan(sgd_step, carry, shuffled)
+            def sgd_step(carry, batch: Batch):
+                params, opt_state = carry
+                (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, batch)
+                updates, opt_state = tx.update(grads, opt_state, params)
+                return (optax.apply_updates(params, updates), opt_state), aux | {"loss": loss}
 
-            (params, opt_state), aux = jax.lax.scan(
-                epoch, (params, runner.opt_state), jax.random.split(k_upd, config.num_epochs))
-            metrics = day_metrics(days) | jax.tree_util.tree_map(jnp.mean, aux)
-            return RunnerState(params, opt_state, env_states), metrics
+            return jax.lax.scan(sgd_step, carry, shuffled)
 
-        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, config.n_iters))
-        return {"runner_state": runner, "metrics": metrics}
+        (params, opt_state), aux = jax.lax.scan(
+            epoch, (params, runner.opt_state), jax.random.split(key, config.num_epochs))
+        metrics = day_metrics(days) | jax.tree_util.tree_map(jnp.mean, aux)
+        return RunnerState(params, opt_state, runner.env_states), metrics
 
-    return train
+    def iteration(runner: RunnerState, key: jax.Array):
+        k_col, k_upd = jax.random.split(key)
+        env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days)
+        return update_from_days(runner._replace(env_states=env_states), days, k_upd)
+
+    return Learner(init, iteration, update_from_days, policy, config.n_iters, n_days)
+
+
+def make_train(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
+    return scan_train(make_learner(config, env, centralised), 4)

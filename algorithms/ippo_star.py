@@ -13,6 +13,7 @@ reward standardised over the minibatch (`normalize_advantage`) or the raw reward
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, NamedTuple
 
@@ -23,13 +24,17 @@ import optax
 
 from algorithms.common import (
     MLP,
+    Day,
     IPPOStarConfig,
+    Learner,
     collect,
     day_metrics,
+    days_shape,
     entropy,
     masked,
     obs_scale,
     reset_envs,
+    scan_train,
     take_agents,
 )
 from urb_jax.env import EnvState, RoutingEnv
@@ -88,19 +93,20 @@ def make_policy(config: IPPOStarConfig, env: RoutingEnv):
     return policy_for
 
 
-def make_train(config: IPPOStarConfig, env: RoutingEnv):
-    init, apply, mlp, scale = make_network(config, env)
+def make_learner(config: IPPOStarConfig, env: RoutingEnv) -> Learner:
+    init_params, apply, mlp, scale = make_network(config, env)
     policy_for = make_policy(config, env)
     mask = jnp.asarray(env.action_mask)
     n_days = days_per_update(config)
     n_iters = max(1, config.num_episodes // n_days)
-    n_samples = n_days * config.num_envs  # per CAV per update
-    batch = min(config.batch_size, n_samples)
     tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
 
     def agent_update(params: Any, opt_state: Any, obs: jnp.ndarray, action: jnp.ndarray,
-                     logp_old: jnp.ndarray, reward: jnp.ndarray, mask_c: jnp.ndarray, key: jax.Array):
+                     logp_old: jnp.ndarray, reward: jnp.ndarray, mask_c: jnp.ndarray, key: jax.Array,
+                     n_samples: int):
         """One CAV, its n_samples samples: num_epochs epochs on random batch_size subsets."""
+        batch = min(config.batch_size, n_samples)
+
         def step(carry, k):
             params, opt_state = carry
             idx = jax.random.permutation(k, n_samples)[:batch]
@@ -118,27 +124,36 @@ def make_train(config: IPPOStarConfig, env: RoutingEnv):
                                                    jax.random.split(key, config.num_epochs))
         return params, opt_state, losses.mean()
 
-    def train(key: jax.Array) -> dict[str, Any]:
-        k_init, k_env, k_loop = jax.random.split(key, 3)
-        params = init(k_init)
-        runner = RunnerState(params, jax.vmap(tx.init)(params), reset_envs(env, k_env, config.num_envs))
+    def init(key: jax.Array) -> RunnerState:
+        k_init, k_env, _ = jax.random.split(key, 3)
+        params = init_params(k_init)
+        return RunnerState(params, jax.vmap(tx.init)(params), reset_envs(env, k_env, config.num_envs))
 
-        def iteration(runner: RunnerState, key: jax.Array):
-            k_col, k_upd = jax.random.split(key)
-            env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days)
-            logits = masked(apply(runner.params, days.obs), mask)
-            logp = jnp.take_along_axis(jax.nn.log_softmax(logits), days.action[..., None], -1)[..., 0]
+    def policy(runner: RunnerState, explore: bool = True):
+        return policy_for(runner.params, sample=explore)
 
-            def per_cav(x: jnp.ndarray) -> jnp.ndarray:  # [T, B, C, ...] -> [C, T*B, ...]
-                return jnp.moveaxis(x.reshape(n_samples, *x.shape[2:]), 1, 0)
+    def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
+        """On-policy: `days` must have been played by `policy(runner, True)`."""
+        t, b = days_shape(days)
+        logits = masked(apply(runner.params, days.obs), mask)
+        logp = jnp.take_along_axis(jax.nn.log_softmax(logits), days.action[..., None], -1)[..., 0]
 
-            params, opt_state, loss = jax.vmap(agent_update)(
-                runner.params, runner.opt_state, per_cav(days.obs), per_cav(days.action), per_cav(logp),
-                per_cav(days.reward), mask, jax.random.split(k_upd, env.n_cavs))
-            metrics = day_metrics(days) | {"loss": loss.mean()}
-            return RunnerState(params, opt_state, env_states), metrics
+        def per_cav(x: jnp.ndarray) -> jnp.ndarray:  # [T, B, C, ...] -> [C, T*B, ...]
+            return jnp.moveaxis(x.reshape(t * b, *x.shape[2:]), 1, 0)
 
-        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, n_iters))
-        return {"runner_state": runner, "metrics": metrics}
+        params, opt_state, loss = jax.vmap(functools.partial(agent_update, n_samples=t * b))(
+            runner.params, runner.opt_state, per_cav(days.obs), per_cav(days.action), per_cav(logp),
+            per_cav(days.reward), mask, jax.random.split(key, env.n_cavs))
+        metrics = day_metrics(days) | {"loss": loss.mean()}
+        return RunnerState(params, opt_state, runner.env_states), metrics
 
-    return train
+    def iteration(runner: RunnerState, key: jax.Array):
+        k_col, k_upd = jax.random.split(key)
+        env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days)
+        return update_from_days(runner._replace(env_states=env_states), days, k_upd)
+
+    return Learner(init, iteration, update_from_days, policy, n_iters, n_days)
+
+
+def make_train(config: IPPOStarConfig, env: RoutingEnv):
+    return scan_train(make_learner(config, env), 3)

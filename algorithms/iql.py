@@ -21,11 +21,13 @@ from algorithms.common import (
     Buffer,
     Day,
     IQLConfig,
+    Learner,
     buffer_add,
     buffer_init,
     buffer_sample,
     collect,
     day_metrics,
+    days_shape,
     eps_greedy,
     flatten_days,
     hidden_layers,
@@ -36,6 +38,7 @@ from algorithms.common import (
     n_updates,
     polyak,
     reset_envs,
+    scan_train,
     select_tree,
     take_agents,
 )
@@ -80,14 +83,13 @@ def make_policy(config: IQLConfig, env: RoutingEnv):
     return policy_for
 
 
-def make_train(config: IQLConfig, env: RoutingEnv):
+def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
     net = make_network(config, env)
     policy_for = make_policy(config, env)
     mask = jnp.asarray(env.action_mask)
     n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.agent_frames_per_batch
     mb_days = minibatch_days(config.minibatch_size, n_cav)
     capacity = max(config.memory_size // max(n_cav, 1), mb_days)  # memory_size frames, stored as days
-    steps_per_epoch = n_updates(1, n_days * n_envs, n_cav, config.minibatch_size)
     total_days = n_days * config.n_iters
     eps_at = linear_schedule(config.eps_init, config.eps_end, config.exploration_fraction * total_days)
     tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
@@ -95,46 +97,55 @@ def make_train(config: IQLConfig, env: RoutingEnv):
     def loss_fn(params: Any, target: Any, batch: Day) -> jnp.ndarray:
         return td_loss(net.apply, params, target, batch, mask, config.gamma)
 
-    def train(key: jax.Array) -> dict[str, Any]:
-        k_init, k_env, k_loop = jax.random.split(key, 3)
+    def init(key: jax.Array) -> RunnerState:
+        k_init, k_env, _ = jax.random.split(key, 3)
         params = net.init(k_init)
         env_states = reset_envs(env, k_env, n_envs)
         c, d = n_cav, env.obs_size
         example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
                       jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
-        runner = RunnerState(params, params, tx.init(params), buffer_init(example, capacity), env_states,
-                             jnp.zeros((), jnp.int32))
+        return RunnerState(params, params, tx.init(params), buffer_init(example, capacity), env_states,
+                           jnp.zeros((), jnp.int32))
 
-        def iteration(runner: RunnerState, key: jax.Array):
-            k_col, k_upd = jax.random.split(key)
-            eps = eps_at(runner.day)
-            env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days)
-            buffer = buffer_add(runner.buffer, flatten_days(days))
+    def policy(runner: RunnerState, explore: bool = True):
+        return policy_for(runner.params, eps_at(runner.day) if explore else 0.0)
 
-            def epoch(carry, k):
-                params, target, opt_state = carry
+    def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
+        t, b = days_shape(days)
+        steps_per_epoch = n_updates(1, t * b, n_cav, config.minibatch_size)
+        buffer = buffer_add(runner.buffer, flatten_days(days))
 
-                def sgd_step(carry, k):
-                    params, opt_state = carry
-                    batch = buffer_sample(buffer, k, mb_days)
-                    loss, grads = jax.value_and_grad(loss_fn)(params, target, batch)
-                    updates, opt_state = tx.update(grads, opt_state, params)
-                    return (optax.apply_updates(params, updates), opt_state), loss
+        def epoch(carry, k):
+            params, target, opt_state = carry
 
-                (params, opt_state), losses = jax.lax.scan(
-                    sgd_step, (params, opt_state), jax.random.split(k, steps_per_epoch))
-                return (params, polyak(target, params, config.target_eps), opt_state), losses.mean()
+            def sgd_step(carry, k):
+                params, opt_state = carry
+                batch = buffer_sample(buffer, k, mb_days)
+                loss, grads = jax.value_and_grad(loss_fn)(params, target, batch)
+                updates, opt_state = tx.update(grads, opt_state, params)
+                return (optax.apply_updates(params, updates), opt_state), loss
 
-            (params, target, opt_state), losses = jax.lax.scan(
-                epoch, (runner.params, runner.target, runner.opt_state),
-                jax.random.split(k_upd, config.num_epochs))
-            ready = buffer.size >= mb_days
-            params, target, opt_state = select_tree(
-                ready, (params, target, opt_state), (runner.params, runner.target, runner.opt_state))
-            metrics = day_metrics(days) | {"loss": losses.mean(), "eps": eps}
-            return RunnerState(params, target, opt_state, buffer, env_states, runner.day + n_days), metrics
+            (params, opt_state), losses = jax.lax.scan(
+                sgd_step, (params, opt_state), jax.random.split(k, steps_per_epoch))
+            return (params, polyak(target, params, config.target_eps), opt_state), losses.mean()
 
-        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, config.n_iters))
-        return {"runner_state": runner, "metrics": metrics}
+        (params, target, opt_state), losses = jax.lax.scan(
+            epoch, (runner.params, runner.target, runner.opt_state), jax.random.split(key, config.num_epochs))
+        ready = buffer.size >= mb_days
+        params, target, opt_state = select_tree(
+            ready, (params, target, opt_state), (runner.params, runner.target, runner.opt_state))
+        metrics = day_metrics(days) | {"loss": losses.mean()}
+        return RunnerState(params, target, opt_state, buffer, runner.env_states, runner.day + t), metrics
 
-    return train
+    def iteration(runner: RunnerState, key: jax.Array):
+        k_col, k_upd = jax.random.split(key)
+        eps = eps_at(runner.day)
+        env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days)
+        runner, metrics = update_from_days(runner._replace(env_states=env_states), days, k_upd)
+        return runner, metrics | {"eps": eps}
+
+    return Learner(init, iteration, update_from_days, policy, config.n_iters, n_days)
+
+
+def make_train(config: IQLConfig, env: RoutingEnv):
+    return scan_train(make_learner(config, env), 3)

@@ -22,7 +22,9 @@ import optax
 from algorithms.common import (
     MLP,
     Buffer,
+    Day,
     IQLStarConfig,
+    Learner,
     buffer_add,
     buffer_init,
     collect,
@@ -31,6 +33,7 @@ from algorithms.common import (
     flatten_days,
     obs_scale,
     reset_envs,
+    scan_train,
     select_tree,
     take_agents,
 )
@@ -86,8 +89,8 @@ def make_policy(config: IQLStarConfig, env: RoutingEnv):
     return policy_for
 
 
-def make_train(config: IQLStarConfig, env: RoutingEnv):
-    init, _, mlp, scale = make_network(config, env)
+def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:
+    init_params, _, mlp, scale = make_network(config, env)
     policy_for = make_policy(config, env)
     n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.update_every
     n_iters = max(1, config.num_episodes // n_days)
@@ -113,30 +116,37 @@ def make_train(config: IQLStarConfig, env: RoutingEnv):
                                                    jax.random.split(key, config.num_epochs))
         return params, opt_state, losses.mean()
 
-    def train(key: jax.Array) -> dict[str, Any]:
-        k_init, k_env, k_loop = jax.random.split(key, 3)
-        params = init(k_init)
+    def init(key: jax.Array) -> RunnerState:
+        k_init, k_env, _ = jax.random.split(key, 3)
+        params = init_params(k_init)
         c, d = n_cav, env.obs_size
         example = Sample(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)))
-        runner = RunnerState(params, jax.vmap(tx.init)(params), buffer_init(example, capacity),
-                             reset_envs(env, k_env, n_envs), jnp.asarray(config.eps_init, jnp.float32))
+        return RunnerState(params, jax.vmap(tx.init)(params), buffer_init(example, capacity),
+                           reset_envs(env, k_env, n_envs), jnp.asarray(config.eps_init, jnp.float32))
 
-        def iteration(runner: RunnerState, key: jax.Array):
-            k_col, k_upd = jax.random.split(key)
-            env_states, days = collect(env, policy_for(runner.params, runner.eps), k_col, runner.env_states,
-                                       n_days)
-            buffer = buffer_add(runner.buffer, flatten_days(Sample(days.obs, days.action, days.reward)))
-            data = buffer.data  # [cap, C, ...] -> per-CAV columns
-            params, opt_state, loss = jax.vmap(agent_update, in_axes=(0, 0, 1, 1, 1, 0, None))(
-                runner.params, runner.opt_state, data.obs, data.action, data.reward,
-                jax.random.split(k_upd, n_cav), buffer.size)
-            ready = buffer.size >= config.batch_size
-            params, opt_state = select_tree(ready, (params, opt_state), (runner.params, runner.opt_state))
-            eps = jnp.where(ready, jnp.maximum(config.eps_min, runner.eps * config.eps_decay), runner.eps)
-            metrics = day_metrics(days) | {"loss": loss.mean(), "eps": runner.eps}
-            return RunnerState(params, opt_state, buffer, env_states, eps), metrics
+    def policy(runner: RunnerState, explore: bool = True):
+        return policy_for(runner.params, runner.eps if explore else 0.0)
 
-        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, n_iters))
-        return {"runner_state": runner, "metrics": metrics}
+    def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
+        buffer = buffer_add(runner.buffer, flatten_days(Sample(days.obs, days.action, days.reward)))
+        data = buffer.data  # [cap, C, ...] -> per-CAV columns
+        params, opt_state, loss = jax.vmap(agent_update, in_axes=(0, 0, 1, 1, 1, 0, None))(
+            runner.params, runner.opt_state, data.obs, data.action, data.reward,
+            jax.random.split(key, n_cav), buffer.size)
+        ready = buffer.size >= config.batch_size
+        params, opt_state = select_tree(ready, (params, opt_state), (runner.params, runner.opt_state))
+        eps = jnp.where(ready, jnp.maximum(config.eps_min, runner.eps * config.eps_decay), runner.eps)
+        metrics = day_metrics(days) | {"loss": loss.mean(), "eps": runner.eps}
+        return RunnerState(params, opt_state, buffer, runner.env_states, eps), metrics
 
-    return train
+    def iteration(runner: RunnerState, key: jax.Array):
+        k_col, k_upd = jax.random.split(key)
+        env_states, days = collect(env, policy_for(runner.params, runner.eps), k_col, runner.env_states,
+                                   n_days)
+        return update_from_days(runner._replace(env_states=env_states), days, k_upd)
+
+    return Learner(init, iteration, update_from_days, policy, n_iters, n_days)
+
+
+def make_train(config: IQLStarConfig, env: RoutingEnv):
+    return scan_train(make_learner(config, env), 3)

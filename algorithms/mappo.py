@@ -9,12 +9,16 @@ URB trains MAPPO with the cooperative reward, which the environment's reward coe
 from __future__ import annotations
 
 from algorithms import ippo
-from algorithms.common import PPOConfig
+from algorithms.common import Learner, PPOConfig
 from urb_jax.env import RoutingEnv
 
 
 def make_policy(config: PPOConfig, env: RoutingEnv):
     return ippo.make_policy(config, env, centralised=True)
+
+
+def make_learner(config: PPOConfig, env: RoutingEnv) -> Learner:
+    return ippo.make_learner(config, env, centralised=True)
 
 
 def make_train(config: PPOConfig, env: RoutingEnv):

@@ -23,12 +23,14 @@ import optax
 from algorithms.common import (
     Buffer,
     Day,
+    Learner,
     MixerConfig,
     buffer_add,
     buffer_init,
     buffer_sample,
     collect,
     day_metrics,
+    days_shape,
     eps_greedy,
     flatten_days,
     hidden_layers,
@@ -40,6 +42,7 @@ from algorithms.common import (
     obs_scale,
     polyak,
     reset_envs,
+    scan_train,
     select_tree,
     take_agents,
 )
@@ -115,7 +118,7 @@ def make_policy(config: MixerConfig, env: RoutingEnv):
     return policy_for
 
 
-def make_train(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix"):
+def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> Learner:
     net = make_network(config, env)
     mix = make_mixer(config, env, mixer)
     policy_for = make_policy(config, env)
@@ -124,7 +127,6 @@ def make_train(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix"):
     n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.agent_frames_per_batch
     mb_days = minibatch_days(config.minibatch_size, n_cav)
     capacity = max(config.memory_size // max(n_cav, 1), mb_days)
-    n_steps = n_updates(config.num_epochs, n_days * n_envs, n_cav, config.minibatch_size)
     eps_at = linear_schedule(config.eps_init, config.eps_end,
                              config.exploration_fraction * n_days * config.n_iters)
     tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
@@ -135,37 +137,47 @@ def make_train(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix"):
     def loss_fn(params: Any, target: Any, batch: Day) -> jnp.ndarray:
         return mixed_td_loss(net.apply, mix.apply, params, target, batch, mask, config.gamma, state_fn)
 
-    def train(key: jax.Array) -> dict[str, Any]:
-        k_agent, k_mix, k_env, k_loop = jax.random.split(key, 4)
+    def init(key: jax.Array) -> RunnerState:
+        k_agent, k_mix, k_env, _ = jax.random.split(key, 4)
         c, d = n_cav, env.obs_size
         params = {"agent": net.init(k_agent),
                   "mixer": mix.init(k_mix, jnp.zeros((c,)), jnp.zeros((c * d,)))}
         example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
                       jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
-        runner = RunnerState(params, params, tx.init(params), buffer_init(example, capacity),
-                             reset_envs(env, k_env, n_envs), jnp.zeros((), jnp.int32))
+        return RunnerState(params, params, tx.init(params), buffer_init(example, capacity),
+                           reset_envs(env, k_env, n_envs), jnp.zeros((), jnp.int32))
 
-        def iteration(runner: RunnerState, key: jax.Array):
-            k_col, k_upd = jax.random.split(key)
-            eps = eps_at(runner.day)
-            env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days)
-            buffer = buffer_add(runner.buffer, flatten_days(days))
+    def policy(runner: RunnerState, explore: bool = True):
+        return policy_for(runner.params, eps_at(runner.day) if explore else 0.0)
 
-            def sgd_step(carry, k):
-                params, target, opt_state = carry
-                batch = buffer_sample(buffer, k, mb_days)
-                loss, grads = jax.value_and_grad(loss_fn)(params, target, batch)
-                updates, opt_state = tx.update(grads, opt_state, params)
-                params = optax.apply_updates(params, updates)
-                return (params, polyak(target, params, 1.0 - config.tau), opt_state), loss
+    def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
+        t, b = days_shape(days)
+        n_steps = n_updates(config.num_epochs, t * b, n_cav, config.minibatch_size)
+        buffer = buffer_add(runner.buffer, flatten_days(days))
 
-            old = (runner.params, runner.target, runner.opt_state)
-            new, losses = jax.lax.scan(sgd_step, old, jax.random.split(k_upd, n_steps))
-            params, target, opt_state = select_tree(buffer.size >= mb_days, new, old)
-            metrics = day_metrics(days) | {"loss": losses.mean(), "eps": eps}
-            return RunnerState(params, target, opt_state, buffer, env_states, runner.day + n_days), metrics
+        def sgd_step(carry, k):
+            params, target, opt_state = carry
+            batch = buffer_sample(buffer, k, mb_days)
+            loss, grads = jax.value_and_grad(loss_fn)(params, target, batch)
+            updates, opt_state = tx.update(grads, opt_state, params)
+            params = optax.apply_updates(params, updates)
+            return (params, polyak(target, params, 1.0 - config.tau), opt_state), loss
 
-        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, config.n_iters))
-        return {"runner_state": runner, "metrics": metrics}
+        old = (runner.params, runner.target, runner.opt_state)
+        new, losses = jax.lax.scan(sgd_step, old, jax.random.split(key, n_steps))
+        params, target, opt_state = select_tree(buffer.size >= mb_days, new, old)
+        metrics = day_metrics(days) | {"loss": losses.mean()}
+        return RunnerState(params, target, opt_state, buffer, runner.env_states, runner.day + t), metrics
 
-    return train
+    def iteration(runner: RunnerState, key: jax.Array):
+        k_col, k_upd = jax.random.split(key)
+        eps = eps_at(runner.day)
+        env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days)
+        runner, metrics = update_from_days(runner._replace(env_states=env_states), days, k_upd)
+        return runner, metrics | {"eps": eps}
+
+    return Learner(init, iteration, update_from_days, policy, config.n_iters, n_days)
+
+
+def make_train(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix"):
+    return scan_train(make_learner(config, env, mixer), 4)

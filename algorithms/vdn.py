@@ -8,12 +8,16 @@ ignored, as in URB.
 from __future__ import annotations
 
 from algorithms import qmix
-from algorithms.common import MixerConfig
+from algorithms.common import Learner, MixerConfig
 from urb_jax.env import RoutingEnv
 
 
 def make_policy(config: MixerConfig, env: RoutingEnv):
     return qmix.make_policy(config, env)
+
+
+def make_learner(config: MixerConfig, env: RoutingEnv) -> Learner:
+    return qmix.make_learner(config, env, mixer="vdn")
 
 
 def make_train(config: MixerConfig, env: RoutingEnv):
