@@ -10,4 +10,5 @@ COMMANDS = [
     "urb_jax.commands.validate_surrogate",
     "urb_jax.commands.baseline",
     "urb_jax.commands.leaderboard",
+    "urb_jax.commands.train",
 ]

@@ -1,0 +1,228 @@
+"""`urb-jax train`: a URB experiment with an RL algorithm, trained by the hybrid loop
+(surrogate + SUMO, `urb_jax.hybrid`); every metric comes from SUMO days."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from urb_jax.commands.common import add_network_flags
+
+METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_learning", "delta_V")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from urb_jax.hybrid import ALGORITHMS, MODES
+
+    parser = sub.add_parser("train", help="train CAV policies (hybrid surrogate + SUMO; metrics from SUMO)")
+    parser.add_argument("--alg", default="iql", choices=ALGORITHMS, help="algorithm (default iql)")
+    add_network_flags(parser)
+    parser.add_argument("--task-conf", default="config1",
+                        help="task config id or .json path (default config1)")
+    parser.add_argument("--alg-conf", default="config1", help="algorithm config id or path (default config1)")
+    parser.add_argument("--env-conf", default="config1", help="env config id or .json path (default config1)")
+    parser.add_argument("--hybrid-conf", default="default",
+                        help="hybrid round/budget config id or path (configs/hybrid, default 'default')")
+    parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
+    parser.add_argument("--seeds", default=None, help="comma-separated training seeds, e.g. 0,1,2 "
+                        "(share the human phase and the SUMO pool; one results folder each)")
+    parser.add_argument("--mode", default="hybrid", choices=MODES,
+                        help="hybrid (default), sumo (URB protocol: SUMO days only), "
+                             "surrogate (train on the surrogate only; test on SUMO)")
+    parser.add_argument("--train-days", type=int, default=None,
+                        help="URB-equivalent training days (overrides the hybrid config)")
+    parser.add_argument("--id", default=None,
+                        help="experiment id (default <alg>_<mode>_<net>_<task>_s<seed>)")
+    parser.add_argument("--resume", default=None, metavar="EXP_ID",
+                        help="continue the killed run EXP_ID in --results-dir from its last checkpoint")
+    parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
+    parser.add_argument("--overwrite", action="store_true", help="replace existing results with this id")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.resume:
+        outs = [resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress)]
+    else:
+        seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else [args.seed]
+        outs = run_train(
+            alg=args.alg, net=args.net, task_conf=args.task_conf, alg_conf=args.alg_conf,
+            env_conf=args.env_conf, hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=seeds,
+            exp_id=args.id, mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
+            overwrite=args.overwrite, progress=not args.no_progress, train_days=args.train_days)
+    for out in outs:
+        m = out["metrics"]
+        print(f"results: {out['folder']}  ({out['wall_time_s']:.1f} s)")
+        for key in METRIC_KEYS:
+            print(f"  {key:18s} {m[key]:.4f}" if m[key] == m[key] else f"  {key:18s} N/A")
+    return 0
+
+
+def _setup(cfg: dict[str, Any]):
+    """Scenario, configs and algorithm config from the recorded arguments."""
+    import dataclasses
+
+    from algorithms.common import load_algo_config
+    from urb_jax.config import load_env_config, load_task_config
+    from urb_jax.demand import scale_demand
+    from urb_jax.hybrid import load_hybrid_config
+    from urb_jax.scenario import load_scenario
+
+    task, task_path = load_task_config(cfg["task_conf"])
+    env, env_path = load_env_config(cfg["env_conf"])
+    hyb, hyb_path = load_hybrid_config(cfg["hybrid_conf"])
+    if cfg.get("train_days"):
+        hyb = dataclasses.replace(hyb, train_days=int(cfg["train_days"]))
+    alg_config = load_algo_config(cfg["alg"], cfg["alg_conf"])
+    scn = load_scenario(cfg["net"], networks_dir=cfg["networks_dir"], env_seed=cfg["env_seed"],
+                        route_params=env.route_params())
+    scn = scale_demand(scn, task.demand_scale, seed=cfg["env_seed"], mode=task.demand_mode,
+                       jitter_s=task.demand_jitter_s)
+    return scn, task, task_path, env, env_path, hyb, hyb_path, alg_config
+
+
+def _executor(hyb: Any, log_dir: Path):
+    from sumo_bridge import InProcessExecutor, SumoPool
+
+    if hyb.sumo_workers <= 1:
+        return InProcessExecutor(log_file=log_dir / "sumo.log")
+    return SumoPool(hyb.sumo_workers, log_dir=log_dir, day_timeout_s=hyb.day_timeout_s)
+
+
+def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "config1",
+              alg_conf: str = "config1", env_conf: str = "config1", hybrid_conf: str = "default",
+              env_seed: int = 42,
+              seeds: list[int] | None = None, exp_id: str | None = None, mode: str = "hybrid",
+              networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
+              progress: bool = True, train_days: int | None = None, executor: Any = None,
+              stop_after_round: int | None = None) -> list[dict[str, Any]]:
+    """Train every seed (sharing the human phase and the SUMO pool); one results folder per seed."""
+    from urb_jax.configio import to_dict
+    from urb_jax.hybrid import run_human_phase
+    from urb_jax.network import DEFAULT_NETWORK
+    from urb_jax.results import create_results_dir, versions, write_json
+
+    seeds = seeds or [0]
+    net = net or DEFAULT_NETWORK
+    args = {"alg": alg, "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
+            "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode, "networks_dir": networks_dir,
+            "train_days": train_days}
+    t0 = time.perf_counter()
+    scn, task, task_path, env, env_path, hyb, hyb_path, alg_config = _setup(args)
+    base = exp_id or f"{alg}_{mode}_{Path(net).name}_{task_path.stem}"
+    folders = {}
+    for s in seeds:
+        name = exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}"
+        folders[s] = create_results_dir(results_dir, name, overwrite)
+    own = executor is None
+    executor = executor or _executor(hyb, folders[seeds[0]])
+    outs = []
+    try:
+        human = run_human_phase(scn, task, hyb, executor, env_seed, calibrate=mode != "sumo")
+        t_human = time.perf_counter() - t0
+        for s in seeds:
+            folder = folders[s]
+            config = {
+                **to_dict(env), **to_dict(task), **{f"hybrid_{k}": v for k, v in to_dict(hyb).items()},
+                "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed, "seed": s,
+                "env_config": env_path.stem, "task_config": task_path.stem, "alg_config": alg_conf,
+                "hybrid_config": hyb_path.stem, "algorithm": alg, "mode": mode, "script": "urb-jax train",
+                "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
+                "exp_type": "normal", "human_days": task.human_learning_episodes, "versions": versions(),
+                "command": sys.argv, "status": "running", "train_args": args | {"seed": s},
+                "human_phase_s": round(t_human, 2),
+            }
+            write_json(folder / "exp_config.json", config)
+            ts = time.perf_counter()
+            summary = _train(scn, task, env, hyb, alg, alg_config, mode, s, env_seed, folder, executor, human,
+                             progress, stop_after_round)
+            wall = time.perf_counter() - ts + (t_human if s == seeds[0] else 0.0)
+            outs.append(_finish(folder, config, summary, task, wall))
+    finally:
+        if own:
+            executor.close()
+    return outs
+
+
+def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
+                 executor: Any = None) -> dict[str, Any]:
+    """Continue results/<exp_id>/ from its newest checkpoint, with the recorded arguments."""
+    folder = Path(results_dir) / exp_id
+    config = json.loads((folder / "exp_config.json").read_text())
+    if config.get("status") == "done":
+        raise SystemExit(f"{folder}: this run is already complete.")
+    args = config["train_args"]
+    scn, task, _, env, _, hyb, _, alg_config = _setup(args)
+    own = executor is None
+    executor = executor or _executor(hyb, folder)
+    t0 = time.perf_counter()
+    try:
+        summary = _train(scn, task, env, hyb, args["alg"], alg_config, args["mode"], args["seed"],
+                         args["env_seed"], folder, executor, None, progress, None)
+    finally:
+        if own:
+            executor.close()
+    config["resumed"] = config.get("resumed", 0) + 1
+    return _finish(folder, config, summary, task, time.perf_counter() - t0 + config.get("wall_time_s", 0.0))
+
+
+def _train(scn, task, env, hyb, alg, alg_config, mode, seed, env_seed, folder, executor, human, progress,
+           stop_after_round):
+    from urb_jax.hybrid import train_seed
+
+    return train_seed(scn=scn, task=task, env_cfg=env, alg=alg, alg_config=alg_config, cfg=hyb, mode=mode,
+                      seed=seed, env_seed=env_seed, folder=folder, executor=executor, human=human,
+                      progress=progress, stop_after_round=stop_after_round)
+
+
+def _finish(folder: Path, config: dict[str, Any], summary: dict[str, Any], task: Any, wall: float) -> dict:
+    from urb_jax.metrics import compute_metrics, vector_metrics
+    from urb_jax.results import read_records, write_json, write_metrics, write_plots
+
+    if "stopped" in summary:  # simulated kill (tests): leave the run as a crash would
+        config.update(wall_time_s=round(wall, 2))
+        write_json(folder / "exp_config.json", config)
+        return {"folder": folder, "stopped": summary["stopped"], "metrics": {}, "wall_time_s": wall}
+    records = read_records(folder)
+    H, T = task.human_learning_episodes, summary["sumo_training_days"]
+    metrics = compute_metrics(records, H, T)
+    write_metrics(folder, metrics, vector_metrics(records, H, T))
+    write_plots(folder, records, H, T, smooth_by=1)
+    _write_rounds(folder, summary["rounds"])
+    config.update(status="done", wall_time_s=round(wall, 2), training_days=T, sumo_training_days=T,
+                  surrogate_training_days=summary["surrogate_days"], rounds=summary["n_rounds"],
+                  alg_config_values=summary["alg_config"])
+    write_json(folder / "exp_config.json", config)
+    return {"folder": folder, "metrics": metrics, "wall_time_s": wall, "summary": summary}
+
+
+def _write_rounds(folder: Path, rounds: list[dict[str, Any]]) -> None:
+    """rounds.csv (per round: surrogate and SUMO days, times, surrogate error) and its plot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    from urb_jax.results import atomic_write_bytes
+
+    df = pd.DataFrame(rounds)
+    atomic_write_bytes(folder / "rounds.csv", df.to_csv(index=False).encode())
+    if "surrogate_mean_error" not in df:
+        return
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot(df["round"], 100 * df["surrogate_mean_error"], label="error of the day mean (%)")
+    ax.plot(df["round"], 100 * df["surrogate_mape"], label="per agent-day MAPE (%)")
+    ax.axhline(0, color="grey", lw=0.5)
+    ax.set_xlabel("round")
+    ax.set_ylabel("surrogate vs SUMO (before refit)")
+    ax.legend()
+    fig.tight_layout()
+    (folder / "plots").mkdir(exist_ok=True)
+    fig.savefig(folder / "plots" / "surrogate_error.png", dpi=110)
+    plt.close(fig)
