@@ -1,0 +1,165 @@
+"""The hybrid trainer end to end on urb_grid with a deterministic stand-in for SUMO days
+(tests/fakeday.py): records, metric provenance, modes, multi-seed, and resume determinism after
+a kill between rounds and in the middle of a round."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fakeday import FakeDay
+
+from urb_jax import hybrid
+from urb_jax.commands.train import resume_train, run_train
+from urb_jax.results import read_records
+
+H, E = 10, 10  # configs/task/test.json
+
+
+class FakeExecutor:
+    """DayExecutor on FakeDay; remembers every batch and can fail on a chosen call (a kill)."""
+
+    def __init__(self, fail_on_call: int | None = None) -> None:
+        self.day = FakeDay()
+        self.batches: list[tuple[np.ndarray, np.ndarray | None]] = []
+        self.fail_on_call = fail_on_call
+
+    def run_days(self, scenario, choices, seeds, is_cav=None):
+        if self.fail_on_call is not None and len(self.batches) + 1 == self.fail_on_call:
+            raise KeyboardInterrupt("simulated kill during a SUMO batch")
+        choices = np.asarray(choices)
+        self.batches.append((choices.copy(), None if is_cav is None else np.asarray(is_cav).copy()))
+        return [self.day(scenario, c, seed=int(s), is_cav=is_cav)
+                for c, s in zip(choices, np.broadcast_to(seeds, (len(choices),)), strict=True)]
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.fixture(scope="module")
+def confs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("confs")
+    hyb = {"train_days": 18, "num_envs": 2, "surrogate_iters": 1, "sumo_days_per_round": 2, "sumo_updates": 1,
+           "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
+           "refit_days": 4, "refit_steps": 5}
+    alg = {"agent_frames_per_batch": 2, "n_iters": 10, "num_epochs": 1, "minibatch_size": 64,
+           "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400}
+    (d / "hyb.json").write_text(json.dumps(hyb))
+    (d / "iql.json").write_text(json.dumps(alg))
+    return {"hybrid_conf": str(d / "hyb.json"), "alg_conf": str(d / "iql.json"), "task_conf": "test"}
+
+
+def _train(confs, tmp_path, exp_id, executor=None, **kw):
+    return run_train(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
+                     executor=executor or FakeExecutor(), **confs, **kw)
+
+
+def test_loop_records_and_metric_provenance(confs, tmp_path):
+    ex = FakeExecutor()
+    (out,) = _train(confs, tmp_path, "run", executor=ex)
+    folder = out["folder"]
+    rec = read_records(folder)
+    cfg = json.loads((folder / "exp_config.json").read_text())
+    rounds = pd.read_csv(folder / "rounds.csv")
+    # 18 budget days, 4 surrogate env-days + 2 SUMO days per round -> 3 rounds, 6 SUMO training days
+    assert len(rounds) == 3 and (rounds["surrogate_days"] == 4).all() and (rounds["sumo_days"] == 2).all()
+    T = cfg["sumo_training_days"]
+    assert T == 6 and cfg["surrogate_training_days"] == 12
+    assert sorted(rec["day"].unique()) == list(range(1, H + T + E + 1))
+    assert rec["sumo"].all()  # only SUMO days are recorded
+    phases = rec.groupby("day")["phase"].first()
+    assert (phases.loc[1:H] == "human").all() and (phases.loc[H + 1:H + T] == "train").all()
+    assert (phases.loc[H + T + 1:] == "test").all()
+    # Every recorded day is a day the executor ran, in order (calibration days are not recorded).
+    ran = [c for batch, _ in ex.batches for c in batch]
+    human_ran, rest = ran[:H], ran[H + 2:]  # 2 varied calibration days after the human phase
+    wide = rec.pivot(index="day", columns="agent", values="action").sort_index()
+    recorded = wide.to_numpy()
+    agent_ids = wide.columns.to_numpy()
+    from urb_jax.scenario import load_scenario
+
+    scn = load_scenario("urb_grid")
+    pos = {a: i for i, a in enumerate(scn.agent_id)}
+    col_pos = np.array([pos[a] for a in agent_ids])
+    executed = np.stack(human_ran + rest)[:, col_pos]
+    np.testing.assert_array_equal(recorded, executed)
+    # t_CAV recomputed independently from the executor's test-day travel times.
+    is_cav = ex.batches[-1][1]
+    test_times = [FakeDay()(scn, c, seed=42).travel_time[is_cav].mean() for c in rest[T:]]
+    assert out["metrics"]["t_CAV"] == pytest.approx(np.mean(test_times), rel=1e-5)
+    assert np.isfinite(out["metrics"]["t_pre"]) and np.isfinite(out["metrics"]["t_train"])
+    assert (folder / "plots" / "surrogate_error.png").is_file()
+
+
+@pytest.mark.parametrize("mode", ["sumo", "surrogate"])
+def test_modes(confs, tmp_path, mode):
+    ex = FakeExecutor()
+    (out,) = _train(confs, tmp_path, mode, executor=ex, mode=mode)
+    rec = read_records(out["folder"])
+    rounds = pd.read_csv(out["folder"] / "rounds.csv")
+    cfg = json.loads((out["folder"] / "exp_config.json").read_text())
+    if mode == "sumo":  # 18 budget days in SUMO, 2 per round; no calibration days
+        assert cfg["sumo_training_days"] == 18 and cfg["surrogate_training_days"] == 0
+        assert "surrogate_days" not in rounds
+        assert len(ex.batches) == H + 9 + E // 2
+    else:  # no SUMO training day; the test still runs in SUMO
+        assert cfg["sumo_training_days"] == 0 and "sumo_days" not in rounds
+        assert (rec["phase"] == "train").sum() == 0 and rec["day"].max() == H + E
+    assert np.isfinite(out["metrics"]["t_CAV"])
+
+
+def test_multi_seed_shares_human_phase(confs, tmp_path):
+    ex = FakeExecutor()
+    outs = _train(confs, tmp_path, "ms", executor=ex, seeds=[0, 1])
+    assert [o["folder"].name for o in outs] == ["ms_s0", "ms_s1"]
+    humans = [b for b, cav in ex.batches if cav is None and len(b) == 1]
+    assert len(humans) == H  # one human phase for both seeds
+    r0, r1 = (read_records(o["folder"]) for o in outs)
+    pd.testing.assert_frame_equal(r0[r0["day"] <= H].reset_index(drop=True),
+                                  r1[r1["day"] <= H].reset_index(drop=True))
+    assert not r0[r0["day"] > H]["action"].equals(r1[r1["day"] > H]["action"].reset_index(drop=True))
+
+
+def _metrics(folder):
+    return pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv")
+
+
+def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatch):
+    (ref,) = _train(confs, tmp_path, "ref")
+    ref_rec = read_records(ref["folder"])
+
+    # Kill 1: after round 1's checkpoint. Then kill 2 in the middle of round 3's SUMO batch, after
+    # a partial resume; the final resume must end exactly like the uninterrupted run.
+    (out,) = _train(confs, tmp_path, "killed", stop_after_round=1)
+    assert out["stopped"] == 1 and hybrid.latest_checkpoint(out["folder"])[0] == 1
+    with pytest.raises(KeyboardInterrupt):
+        resume_train("killed", results_dir=str(tmp_path), progress=False,
+                     executor=FakeExecutor(fail_on_call=2))  # round 2 runs, round 3's SUMO batch dies
+    assert hybrid.latest_checkpoint(out["folder"])[0] == 2
+
+    # Kill 3: during the round-3 checkpoint, after its record part was flushed (a stale part).
+    real_checkpoint = hybrid._checkpoint
+
+    def dying_checkpoint(folder, rounds_done, *a, **kw):
+        if rounds_done == 3:
+            raise KeyboardInterrupt("killed while checkpointing")
+        return real_checkpoint(folder, rounds_done, *a, **kw)
+
+    monkeypatch.setattr(hybrid, "_checkpoint", dying_checkpoint)
+    with pytest.raises(KeyboardInterrupt):
+        resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    monkeypatch.setattr(hybrid, "_checkpoint", real_checkpoint)
+    assert len(list((out["folder"] / "records.parts").glob("part-*"))) > \
+        json.loads((out["folder"] / "checkpoints" / "round_00002" / "meta.json").read_text())["record_parts"]
+
+    final = resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    pd.testing.assert_frame_equal(_metrics(final["folder"]), _metrics(ref["folder"]))
+    pd.testing.assert_frame_equal(read_records(final["folder"]), ref_rec)
+    pd.testing.assert_frame_equal(pd.read_csv(final["folder"] / "rounds.csv").filter(like="time"),
+                                  pd.read_csv(ref["folder"] / "rounds.csv").filter(like="time"))
