@@ -123,7 +123,21 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     executor = executor or _executor(hyb, folders[seeds[0]])
     outs = []
     try:
-        human = run_human_phase(scn, task, hyb, executor, env_seed, calibrate=mode != "sumo")
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=task.human_learning_episodes + (hyb.calib_varied_days if mode != "sumo" else 0),
+                       unit="day", dynamic_ncols=True, desc="human/SUMO")
+
+        def on_day(phase: str, n: int) -> None:
+            if bar is not None:
+                bar.set_description(f"{phase}/SUMO")
+                bar.update(n)
+
+        human = run_human_phase(scn, task, hyb, executor, env_seed, on_day=on_day, calibrate=mode != "sumo")
+        if bar is not None:
+            bar.close()
         t_human = time.perf_counter() - t0
         for s in seeds:
             folder = folders[s]
