@@ -30,8 +30,9 @@ TINY = {
     "iql_star": {"widths": [16], "batch_size": 4},
     "ippo_star": {"widths": [16], "batch_size": 4, "update_every": 1},
 }
-HYB = {"train_days": 12, "num_envs": 2, "surrogate_iters": 1, "sumo_days_per_round": 2, "sumo_workers": 1,
-       "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20, "refit_days": 4, "refit_steps": 5}
+HYB = {"train_days": 12, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
+       "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20, "refit_days": 4,
+       "refit_steps": 5}
 
 
 @pytest.mark.slow

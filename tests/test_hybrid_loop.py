@@ -45,9 +45,9 @@ class FakeExecutor:
 @pytest.fixture(scope="module")
 def confs(tmp_path_factory):
     d = tmp_path_factory.mktemp("confs")
-    hyb = {"train_days": 18, "num_envs": 2, "surrogate_iters": 1, "sumo_days_per_round": 2, "sumo_updates": 1,
-           "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
-           "refit_days": 4, "refit_steps": 5}
+    hyb = {"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
+           "sumo_updates": 1, "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2,
+           "calib_steps": 20, "refit_days": 4, "refit_steps": 5}
     alg = {"agent_frames_per_batch": 2, "n_iters": 10, "num_epochs": 1, "minibatch_size": 64,
            "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400}
     (d / "hyb.json").write_text(json.dumps(hyb))
@@ -114,6 +114,7 @@ def test_modes(confs, tmp_path, mode):
     assert np.isfinite(out["metrics"]["t_CAV"])
 
 
+@pytest.mark.slow
 def test_multi_seed_shares_human_phase(confs, tmp_path):
     ex = FakeExecutor()
     outs = _train(confs, tmp_path, "ms", executor=ex, seeds=[0, 1])
@@ -130,6 +131,7 @@ def _metrics(folder):
     return pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv")
 
 
+@pytest.mark.slow
 def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatch):
     (ref,) = _train(confs, tmp_path, "ref")
     ref_rec = read_records(ref["folder"])

@@ -5,7 +5,8 @@ Phases (one results folder per training seed, URB layout):
 1. human learning: H SUMO days (`urb_jax.experiment.train_humans`, t_pre = last 50);
 2. mutation (`draw_cavs`), surrogate calibration on the last `calib_human_days` human days plus
    `calib_varied_days` SUMO days of varied joint actions (not experiment days, not in records);
-3. rounds: `surrogate_iters` learner iterations on the surrogate (mode hybrid/surrogate), then
+3. rounds: `surrogate_days_per_round` env-days of learner iterations on the surrogate (mode
+   hybrid/surrogate), then
    `sumo_days_per_round` P SUMO days in parallel (mode hybrid/sumo) played by the current
    exploring policies (CAVs act in departure order on the real humans' choices), then
    `sumo_updates` updates on those days, then (hybrid) a refit on `refit_days` days drawn from
@@ -61,7 +62,7 @@ class HybridConfig:
 
     train_days: int = 1000  # URB-equivalent training days (surrogate env-days + SUMO days)
     num_envs: int = 16  # parallel surrogate envs (replaces the algorithm's num_envs)
-    surrogate_iters: int = 2  # learner iterations on the surrogate per round
+    surrogate_days_per_round: int = 640  # surrogate env-days per round (rounded to whole iterations)
     sumo_days_per_round: int = 4  # P
     sumo_updates: int = 1  # updates on each round's SUMO days
     sumo_workers: int = 2
@@ -126,28 +127,39 @@ def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor
                       np.stack([r.status == ARRIVED for r in results]))
 
 
+def iters_per_round(cfg: HybridConfig, days_per_iter: int, mode: str) -> int:
+    """Learner iterations on the surrogate per round (each collects days_per_iter x num_envs days)."""
+    if mode == "sumo":
+        return 0
+    return max(1, round(cfg.surrogate_days_per_round / (days_per_iter * cfg.num_envs)))
+
+
 def learner_for(alg: str, alg_config: Any, env: RoutingEnv, cfg: HybridConfig, n_rounds: int,
-                mode: str) -> tuple[Learner, Any]:
-    """The algorithm's learner with num_envs and schedule lengths fitted to the hybrid budget."""
+                mode: str, n_iters_round: int = 1) -> tuple[Learner, Any]:
+    """The algorithm's learner with num_envs and schedule lengths fitted to the hybrid budget:
+    epsilon schedules (linear over n_iters, or IQL*'s per-update decay) end where URB's end."""
     import importlib
 
     module = importlib.import_module(f"algorithms.{alg}")
     fields = {f.name for f in dataclasses.fields(alg_config)}
-    upd = {"num_envs": cfg.num_envs}
+    upd: dict[str, Any] = {"num_envs": cfg.num_envs}
+    sumo_updates = cfg.sumo_updates if mode != "surrogate" else 0
     if "agent_frames_per_batch" in fields:  # TorchRL family: epsilon schedules span n_iters iterations
         per_iter = alg_config.agent_frames_per_batch
-        sur = cfg.surrogate_iters * per_iter if mode != "sumo" else 0
-        sumo = cfg.sumo_updates if mode != "surrogate" else 0
-        upd["n_iters"] = max(1, math.ceil(n_rounds * (sur + sumo) / per_iter))
+        upd["n_iters"] = max(1, math.ceil(n_rounds * (n_iters_round * per_iter + sumo_updates) / per_iter))
+    if "eps_decay" in fields:  # IQL*: URB decays once per update over num_episodes updates
+        updates = max(1, n_rounds * (n_iters_round + sumo_updates))
+        upd["eps_decay"] = float(alg_config.eps_decay ** (alg_config.num_episodes / updates))
     alg_config = dataclasses.replace(alg_config, **upd)
     return module.make_learner(alg_config, env), alg_config
 
 
-def plan_rounds(cfg: HybridConfig, mode: str, days_per_iter: int) -> tuple[int, int, int]:
-    """(rounds, surrogate env-days per round, SUMO training days per round)."""
-    sur = cfg.surrogate_iters * days_per_iter * cfg.num_envs if mode != "sumo" else 0
+def plan_rounds(cfg: HybridConfig, mode: str, days_per_iter: int) -> tuple[int, int, int, int]:
+    """(rounds, surrogate iterations per round, surrogate env-days per round, SUMO days per round)."""
+    iters = iters_per_round(cfg, days_per_iter, mode)
+    sur = iters * days_per_iter * cfg.num_envs
     sumo = cfg.sumo_days_per_round if mode != "surrogate" else 0
-    return max(1, math.ceil(cfg.train_days / max(sur + sumo, 1))), sur, sumo
+    return max(1, math.ceil(cfg.train_days / max(sur + sumo, 1))), iters, sur, sumo
 
 
 class _Progress:
@@ -229,8 +241,8 @@ def train_seed(
     real_env = RoutingEnv(scn, is_cav, lambda p, c: p, human_init=humans0,
                           travel_params=jnp.zeros((n,), jnp.float32), **common)
     probe, _ = learner_for(alg, alg_config, env, cfg, 1, mode)
-    n_rounds, sur_per_round, sumo_per_round = plan_rounds(cfg, mode, probe.days_per_iter)
-    learner, alg_config = learner_for(alg, alg_config, env, cfg, n_rounds, mode)
+    n_rounds, n_iters_round, sur_per_round, sumo_per_round = plan_rounds(cfg, mode, probe.days_per_iter)
+    learner, alg_config = learner_for(alg, alg_config, env, cfg, n_rounds, mode, n_iters_round)
     P = cfg.sumo_days_per_round
     levels = dependency_levels(env)
     k_rounds, k_test, k_start = jax.random.split(jax.random.PRNGKey(seed), 3)
@@ -239,7 +251,7 @@ def train_seed(
     # ---- jitted pieces
     @jax.jit
     def sur_round(runner: Any, key: jax.Array):
-        return jax.lax.scan(learner.iteration, runner, jax.random.split(key, cfg.surrogate_iters))
+        return jax.lax.scan(learner.iteration, runner, jax.random.split(key, n_iters_round))
 
     @jax.jit
     def update(runner: Any, days: Day, key: jax.Array):
