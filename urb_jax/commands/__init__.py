@@ -7,4 +7,5 @@ COMMANDS = [
     "urb_jax.commands.networks",
     "urb_jax.commands.scenario",
     "urb_jax.commands.sumo_day",
+    "urb_jax.commands.validate_surrogate",
 ]

@@ -1,0 +1,110 @@
+"""Surrogate days per second vs a plain scatter-add BPR and vs one SUMO day, measured in one run.
+
+    python benchmarks/surrogate_speed.py --networks-dir ../shared/networks
+
+Prints, per network and batch size B: days/s of `surrogate.predict` (int choices), of its
+probability input with a gradient (B=64 row), of a plain jitted scatter-add BPR day (vmap, chosen
+routes, 5-min bins; the reference design), and the speed-up over one SUMO day (sumo_bridge.run_day,
+median of 3, same joint action).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from surrogate.model import SurrogateConfig, build_static, init_params, predict, predict_jit
+from urb_jax.scenario import load_scenario
+
+
+def rate(fn, arg, batch: int, seconds: float) -> float:
+    jax.block_until_ready(fn(arg))
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        jax.block_until_ready(fn(arg))
+        n += 1
+    return batch * n / (time.perf_counter() - t0)
+
+
+def plain_bpr(scn, bin_s: float = 300.0):
+    """The naive reference: per day, scatter-add chosen-route edge entries into (edge, bin) flows."""
+    routes = jnp.asarray(np.maximum(scn.routes, 0))
+    valid = jnp.asarray(scn.routes >= 0)
+    t0_np = scn.edge_length / scn.edge_speed
+    t0 = jnp.asarray(t0_np, jnp.float32)
+    cap = jnp.asarray(scn.edge_capacity * bin_s / 3600, jnp.float32)
+    t_edge = np.where(scn.routes >= 0, t0_np[np.maximum(scn.routes, 0)], 0)
+    enter = scn.agent_depart[:, None, None] + np.cumsum(t_edge, axis=2) - t_edge
+    bins = jnp.asarray(np.minimum(enter // bin_s, 15).astype(np.int32))
+    n = scn.n_agents
+    n_bins = 16
+
+    def day(c):
+        e = routes[jnp.arange(n), c]
+        b = bins[jnp.arange(n), c]
+        v = valid[jnp.arange(n), c]
+        cell = e * n_bins + b
+        flow = jnp.zeros(scn.n_edges * n_bins).at[cell.reshape(-1)].add(v.reshape(-1).astype(jnp.float32))
+        x = flow[cell] / cap[e]
+        return jnp.where(v, t0[e] * (1 + 0.15 * x**4), 0).sum(1) / 60
+
+    return jax.jit(jax.vmap(day))
+
+
+def sumo_seconds(scn, choices: np.ndarray) -> tuple[float, str]:
+    try:
+        from sumo_bridge import run_day
+
+        name = "libsumo"
+    except ImportError:
+        from surrogate.sumo_days import run_day_cli as run_day
+
+        name = "sumo CLI"
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        run_day(scn, choices, seed=42)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), name
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--networks-dir", default=None)
+    ap.add_argument("--nets", default="urb_grid,saint_arnoult,provins,ingolstadt_custom")
+    ap.add_argument("--batches", default="1,64,1024")
+    ap.add_argument("--seconds", type=float, default=2.0, help="timing window per measurement")
+    args = ap.parse_args()
+    print(f"JAX {jax.__version__} on {jax.devices()[0].platform}, {os.cpu_count()} CPU cores")
+    header = ("| network | agents | B | surrogate days/s | plain BPR days/s | ratio | "
+              "SUMO s/day | speed-up vs SUMO |")
+    rows = [header, "|---|---|---|---|---|---|---|---|"]
+    grad_rows = ["| network | B | prob. input + grad days/s |", "|---|---|---|"]
+    for net in args.nets.split(","):
+        scn = load_scenario(net, networks_dir=args.networks_dir)
+        static = build_static(scn, SurrogateConfig())
+        params = init_params(static)
+        free = np.asarray(scn.fft).argmin(axis=1)
+        sumo_s, sumo_name = sumo_seconds(scn, free)
+        base = plain_bpr(scn)
+        rng = np.random.default_rng(0)
+        for b in [int(x) for x in args.batches.split(",")]:
+            ch = jnp.asarray(rng.integers(0, scn.k, (b, scn.n_agents)), jnp.int32)
+            r_s = rate(lambda c: predict_jit(params, static, c), ch, b, args.seconds)  # noqa: B023
+            r_b = rate(base, ch, b, args.seconds)
+            rows.append(f"| {net} | {scn.n_agents} | {b} | {r_s:,.0f} | {r_b:,.0f} | {r_s / r_b:.1f}x | "
+                        f"{sumo_s:.2f} ({sumo_name}) | {r_s * sumo_s:,.0f}x |")
+            print(rows[-1], flush=True)
+        logits = jnp.asarray(rng.normal(size=(64, scn.n_agents, scn.k)).astype(np.float32))
+        grad = jax.jit(jax.grad(lambda lg, p=params, s=static: predict(p, s, jax.nn.softmax(lg, -1)).sum()))
+        grad_rows.append(f"| {net} | 64 | {rate(grad, logits, 64, args.seconds):,.0f} |")
+    print("\n".join(["", *rows, "", *grad_rows]))
+
+
+if __name__ == "__main__":
+    main()

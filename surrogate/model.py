@@ -1,0 +1,280 @@
+"""A time-dependent BPR link-performance model of one URB day, jitted and differentiable.
+
+An agent's travel time is the sum, over the edges of its route, of the time each edge takes at the
+moment the agent enters it, plus an insertion delay and an intercept:
+
+    enter time     u_nkj = depart_n + gamma * sum_{i<j} t0_{e_i}           (static, free-flow based)
+    flow           x_{e,b} = sum_{n,k,j: e_nkj=e} P_nk * w_b(u_nkj)          (triangular kernel in bins)
+    edge time      tau_{e,b} = (t0_e s_e + j_e) * (1 + a_e (x_{e,b} / cap_e)^p)
+    route time     R_nk = sum_j sum_b w_b(u_nkj) tau_{e_nkj,b}
+    agent time     T_n = g_n sum_k P_nk R_nk + ins * q_n + c0                 (seconds; returned /60)
+
+`g_n` is a per-agent speed factor: SUMO draws each vehicle's speedFactor (N(1, 0.1)) from the
+seeded RNG in insertion order, so under URB's fixed seed an agent drives 10% faster or slower
+than the limit on every day and every route; the fit recovers it (prior toward 1).
+
+`w_b` splits an entry between the two nearest bin centres (linear interpolation), so flows and
+times move continuously with departure time. The jitted day is two sorted segment sums laid out
+batch-last ([rows, B]: every gather moves a contiguous batch vector) and a map over batch chunks
+that keeps the working set in cache. See docs/surrogate.md for what each term buys, measured.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from urb_jax.scenario import Scenario
+
+# Junction classes for the junction/signal delay term (the edge's downstream junction).
+JUNCTION_CLASSES = ("traffic_light", "priority", "right_before_left", "other")
+
+
+@dataclass(frozen=True)
+class SurrogateConfig:
+    """Static structure of the model: changing it changes the index arrays, not the parameters."""
+
+    bin_s: float = 300.0  # width of a time bin, s
+    bpr_power: int = 4  # p in (x/c)^p; an integer so the power is two multiplies
+    entry_scale: float = 1.2  # gamma: edge entry times use free-flow times scaled by this
+    origin_window_s: float = 60.0  # insertion-load window: same-origin departures in (d - w, d]
+    chunk: int = 128  # batch chunk per map step (cache-sized working set)
+    interpolate: bool = True  # split each edge entry between the two nearest bins (else: hard bins)
+
+
+@partial(
+    jax.tree_util.register_dataclass,
+    data_fields=[
+        "flow_row", "flow_cell", "flow_w", "time_row", "time_cell", "time_w",
+        "cell_edge", "cell_cap", "edge_t0", "edge_class", "edge_jclass", "origin_load",
+    ],
+    meta_fields=["n", "k", "n_cells", "n_edges", "n_classes", "power", "chunk"],
+)
+@dataclass(frozen=True)
+class Static:
+    """Index arrays of one scenario (built once in numpy); a pytree, so `predict` can be jitted."""
+
+    flow_row: jax.Array  # [M] row n*K+k of each (agent, route, edge, bin) entry, sorted by cell
+    flow_cell: jax.Array  # [M]
+    flow_w: jax.Array  # [M] interpolation weight
+    time_row: jax.Array  # [M] the same entries sorted by row
+    time_cell: jax.Array
+    time_w: jax.Array
+    cell_edge: jax.Array  # [C] edge of each (edge, bin) cell
+    cell_cap: jax.Array  # [C] capacity of the cell's edge, vehicles per bin
+    edge_t0: jax.Array  # [E] length / speed limit, s
+    edge_class: jax.Array  # [E] road class (edge type) index
+    edge_jclass: jax.Array  # [E] downstream junction class index
+    origin_load: jax.Array  # [N] same-origin-edge departures within the insertion window
+    n: int
+    k: int
+    n_cells: int
+    n_edges: int
+    n_classes: int
+    power: int
+    chunk: int
+
+
+def junction_types(net_file: str, edge_ids: tuple[str, ...]) -> list[str]:
+    """Type of each edge's downstream junction (traffic_light, priority, ...) read from the net.xml."""
+    to_node: dict[str, str] = {}
+    jtype: dict[str, str] = {}
+    for _, elem in ET.iterparse(net_file, events=("end",)):
+        if elem.tag == "edge":
+            eid = elem.get("id", "")
+            if not eid.startswith(":"):
+                to_node[eid] = elem.get("to", "")
+            elem.clear()
+        elif elem.tag == "junction":
+            jtype[elem.get("id", "")] = elem.get("type", "")
+            elem.clear()
+    out = []
+    for e in edge_ids:
+        t = jtype.get(to_node.get(e, ""), "")
+        if t.startswith("traffic_light"):
+            t = "traffic_light"
+        out.append(t if t in JUNCTION_CLASSES else "other")
+    return out
+
+
+def edge_classes(scn: Scenario) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Road class index per edge (by SUMO edge type) and the class names."""
+    names = tuple(sorted(set(scn.edge_type)))
+    lookup = {t: i for i, t in enumerate(names)}
+    return np.array([lookup[t] for t in scn.edge_type], dtype=np.int32), names
+
+
+def _origin_load(scn: Scenario, window: float) -> np.ndarray:
+    """For each agent: agents leaving the same origin edge in (depart - window, depart], itself included."""
+    load = np.zeros(scn.n_agents, dtype=np.float32)
+    dep = scn.agent_depart.astype(np.float64)
+    origin = scn.od_routes[scn.agent_od, 0, 0]
+    for o in np.unique(origin):
+        idx = np.flatnonzero(origin == o)
+        d = np.sort(dep[idx])
+        lo = np.searchsorted(d, dep[idx] - window, side="right")
+        hi = np.searchsorted(d, dep[idx], side="right")
+        load[idx] = hi - lo
+    return load
+
+
+def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig()) -> Static:
+    """Precompute the (agent, route, edge, bin) entries, the compact cells and the edge features."""
+    routes = scn.routes  # [N, K, L]
+    N, K, _ = routes.shape
+    t0 = (scn.edge_length / scn.edge_speed).astype(np.float64)
+    valid = routes >= 0
+    t_edge = np.where(valid, t0[np.maximum(routes, 0)], 0.0)
+    before = np.cumsum(t_edge, axis=2) - t_edge  # free-flow time before entering edge j
+    n_i, k_i, j_i = np.nonzero(valid)
+    e_i = routes[n_i, k_i, j_i]
+    enter = scn.agent_depart[n_i] + config.entry_scale * before[n_i, k_i, j_i]
+    u = enter / config.bin_s - 0.5  # position relative to bin centres
+    b0 = np.floor(u).astype(np.int64)
+    f = u - b0
+    if not config.interpolate:
+        b0, f = np.floor(enter / config.bin_s).astype(np.int64), np.zeros_like(u)
+    row = np.concatenate([n_i * K + k_i] * 2)
+    edge = np.concatenate([e_i, e_i])
+    b = np.concatenate([b0, b0 + 1]) + 1  # >= 0
+    w = np.concatenate([1.0 - f, f])
+    keep = w > 0
+    row, edge, b, w = row[keep], edge[keep], b[keep], w[keep]
+    n_bins = int(b.max()) + 1
+    uniq, cell = np.unique(edge * n_bins + b, return_inverse=True)
+    cell_edge = (uniq // n_bins).astype(np.int32)
+    by_cell = np.lexsort((row, cell))
+    by_row = np.lexsort((cell, row))
+    cls, _ = edge_classes(scn)
+    jnames = junction_types(scn.net_file, scn.edge_ids)
+    jcls = np.array([JUNCTION_CLASSES.index(t) for t in jnames], dtype=np.int32)
+    cap = scn.edge_capacity.astype(np.float64) * config.bin_s / 3600.0
+    f32 = partial(jnp.asarray, dtype=jnp.float32)
+    i32 = partial(jnp.asarray, dtype=jnp.int32)
+    return Static(
+        flow_row=i32(row[by_cell]), flow_cell=i32(cell[by_cell]), flow_w=f32(w[by_cell]),
+        time_row=i32(row[by_row]), time_cell=i32(cell[by_row]), time_w=f32(w[by_row]),
+        cell_edge=i32(cell_edge), cell_cap=f32(cap[cell_edge]), edge_t0=f32(t0),
+        edge_class=i32(cls), edge_jclass=i32(jcls),
+        origin_load=f32(_origin_load(scn, config.origin_window_s)),
+        n=N, k=K, n_cells=len(uniq), n_edges=scn.n_edges, n_classes=int(cls.max()) + 1,
+        power=config.bpr_power, chunk=config.chunk,
+    )
+
+
+def init_params(static: Static) -> dict[str, jax.Array]:
+    """Uncalibrated parameters: textbook BPR (a=0.15) with a small junction delay per junction class.
+
+    Positive quantities are stored as logs; `*_e` are per-edge deviations from the class value
+    (regularised toward 0 during calibration).
+    """
+    nc, ne, nj = static.n_classes, static.n_edges, len(JUNCTION_CLASSES)
+    return {
+        "log_speed_c": jnp.zeros(nc),  # multiplier on free-flow time
+        "log_speed_e": jnp.zeros(ne),
+        "log_a_c": jnp.full(nc, jnp.log(0.15)),
+        "log_a_e": jnp.zeros(ne),
+        "log_junc_j": jnp.log(jnp.array([8.0, 2.0, 4.0, 2.0])[:nj]),  # s per traversal
+        "log_junc_e": jnp.zeros(ne),
+        "log_agent": jnp.zeros(static.n),  # per-agent speed factor g_n (seeded SUMO speedFactor)
+        "log_ins": jnp.log(jnp.array(1.0)),  # s per same-origin departure in the window
+        "intercept": jnp.array(1.0),  # s (URB's +1 s step offset, start-up acceleration)
+    }
+
+
+def edge_terms(params: dict[str, jax.Array], static: Static) -> tuple[jax.Array, jax.Array]:
+    """Per-edge base time t0*s + j (s) and BPR coefficient a."""
+    cls, jc = static.edge_class, static.edge_jclass
+    speed = jnp.exp(params["log_speed_c"][cls] + params["log_speed_e"])
+    junc = jnp.exp(params["log_junc_j"][jc] + params["log_junc_e"])
+    a = jnp.exp(params["log_a_c"][cls] + params["log_a_e"])
+    return static.edge_t0 * speed + junc, a
+
+
+def _route_times(X: jax.Array, base_c: jax.Array, a_c: jax.Array, static: Static) -> jax.Array:
+    """[N*K, b] route weights -> [N*K, b] route times (s), both batch-last."""
+    F = jax.ops.segment_sum(
+        static.flow_w[:, None] * X[static.flow_row], static.flow_cell, static.n_cells,
+        indices_are_sorted=True,
+    )
+    r = F / static.cell_cap[:, None]
+    tau = base_c[:, None] * (1.0 + a_c[:, None] * jax.lax.integer_pow(r, static.power))
+    return jax.ops.segment_sum(
+        static.time_w[:, None] * tau[static.time_cell], static.time_row, static.n * static.k,
+        indices_are_sorted=True,
+    )
+
+
+def _day_chunk(chunk_in: jax.Array, base_c, a_c, static: Static) -> jax.Array:
+    """One batch chunk, batch-last: int [N, b] choices or [N, K, b] probabilities -> [N, b] seconds."""
+    N, K = static.n, static.k
+    if chunk_in.ndim == 2:  # route indices
+        X = (chunk_in[:, None, :] == jnp.arange(K, dtype=chunk_in.dtype)[None, :, None])
+        X = X.astype(jnp.float32).reshape(N * K, -1)
+        R = _route_times(X, base_c, a_c, static).reshape(N, K, -1)
+        return jnp.take_along_axis(R, chunk_in[:, None, :], axis=1)[:, 0]
+    X = chunk_in.reshape(N * K, -1)
+    R = _route_times(X, base_c, a_c, static).reshape(N, K, -1)
+    return (chunk_in * R).sum(axis=1)
+
+
+def route_times_seconds(params, static: Static, probs: jax.Array) -> jax.Array:
+    """[B, N, K] probabilities -> [B, N, K] time of every route given the flows (s, no insertion)."""
+    base, a = edge_terms(params, static)
+    X = jnp.moveaxis(probs, 0, -1).reshape(static.n * static.k, -1)
+    R = _route_times(X, base[static.cell_edge], a[static.cell_edge], static)
+    R = R.reshape(static.n, static.k, -1) * jnp.exp(params["log_agent"])[:, None, None]
+    return jnp.moveaxis(R, -1, 0)
+
+
+def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) -> jax.Array:
+    """Travel times in minutes, [B, N], for choices [B, N] (route index) or [B, N, K] (probabilities).
+
+    A leading batch axis is optional ([N] or [N, K] give [N]). Probabilities give each agent's
+    expected time under flows weighted by everyone's probabilities (differentiable).
+    """
+    is_prob = jnp.issubdtype(choices.dtype, jnp.floating)
+    single = choices.ndim == (2 if is_prob else 1)
+    if single:
+        choices = choices[None]
+    B = choices.shape[0]
+    base, a = edge_terms(params, static)
+    base_c, a_c = base[static.cell_edge], a[static.cell_edge]
+    x = jnp.moveaxis(choices, 0, -1)  # batch last
+    if not is_prob:
+        x = x.astype(jnp.int32)
+    size = static.chunk
+    if size >= B:
+        sec = _day_chunk(x, base_c, a_c, static)
+    else:
+        n_chunks = -(-B // size)
+        pad = n_chunks * size - B
+        if pad:
+            x = jnp.concatenate([x, jnp.zeros((*x.shape[:-1], pad), x.dtype)], axis=-1)
+        xs = jnp.moveaxis(x.reshape((*x.shape[:-1], n_chunks, size)), -2, 0)
+        out = jax.lax.map(lambda c: _day_chunk(c, base_c, a_c, static), xs)  # [n_chunks, N, size]
+        sec = jnp.moveaxis(out, 0, 1).reshape(static.n, -1)[:, :B]
+    ins = jnp.exp(params["log_ins"]) * static.origin_load[:, None]
+    sec = sec * jnp.exp(params["log_agent"])[:, None] + ins + params["intercept"]
+    out = sec.T / 60.0
+    return out[0] if single else out
+
+
+predict_jit = jax.jit(predict)
+
+
+@dataclass(frozen=True)
+class Surrogate:
+    """A scenario's static arrays with fitted parameters: `surrogate(choices) -> minutes`."""
+
+    static: Static
+    params: dict[str, jax.Array]
+    config: SurrogateConfig = field(default_factory=SurrogateConfig)
+
+    def __call__(self, choices: jax.Array) -> jax.Array:
+        return predict_jit(self.params, self.static, jnp.asarray(choices))

@@ -1,0 +1,291 @@
+"""Surrogate vs SUMO on held-out days: error metrics, better-route agreement, report and plots."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from surrogate.calibrate import FitConfig, SumoSample, calibrate
+from surrogate.data import make_choices
+from surrogate.model import SurrogateConfig, build_static, init_params, predict_jit
+from surrogate.sumo_days import backend_name, sumo_days
+from urb_jax.scenario import Scenario
+
+
+@dataclass(frozen=True)
+class ValidationConfig:
+    train_days: int = 40
+    test_days: int = 10
+    deviation_agents: int = 30  # agents whose K-1 single-agent deviations are re-simulated
+    noise_agents: int = 10  # of those, how many are re-simulated with a second SUMO seed
+    seed: int = 42  # SUMO seed (URB: env_seed, same every day)
+    workers: int = 2
+
+
+def error_metrics(pred: np.ndarray, sample: SumoSample) -> dict[str, float]:
+    """Mean-travel-time error (per day, relative), per agent-day MAPE and R² over arrived agents."""
+    y, m = sample.travel_time, sample.arrived
+    day_err = np.array([abs(pred[d][m[d]].mean() - y[d][m[d]].mean()) / y[d][m[d]].mean()
+                        for d in range(len(y))])
+    res = (pred - y)[m]
+    return {
+        "mean_tt_error": float(day_err.mean()),
+        "mean_tt_error_max": float(day_err.max()),
+        "mape": float(np.mean(np.abs(res) / y[m])),
+        "r2": float(1 - np.sum(res**2) / np.sum((y[m] - y[m].mean()) ** 2)),
+        "bias": float(np.mean(res / y[m])),
+        "sumo_mean_tt": float(y[m].mean()),
+        "surrogate_mean_tt": float(pred[m].mean()),
+        "removed": int((~m).sum()),
+    }
+
+
+def binned_bias(key: np.ndarray, rel: np.ndarray, edges: np.ndarray) -> list[dict[str, float]]:
+    out = []
+    idx = np.clip(np.digitize(key, edges[1:-1]), 0, len(edges) - 2)
+    for b in range(len(edges) - 1):
+        sel = idx == b
+        if sel.any():
+            out.append({"lo": float(edges[b]), "hi": float(edges[b + 1]), "n": int(sel.sum()),
+                        "bias": float(rel[sel].mean()), "mape": float(np.abs(rel[sel]).mean())})
+    return out
+
+
+def deviation_choices(base: np.ndarray, agents: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, list]:
+    """One joint action per (agent, alternative route): the base day with that agent switched."""
+    rows, meta = [], []
+    for i in agents:
+        for k in range(valid.shape[1]):
+            if k != base[i] and valid[i, k]:
+                ch = base.copy()
+                ch[i] = k
+                rows.append(ch)
+                meta.append((int(i), int(k)))
+    return np.stack(rows), meta
+
+
+def route_agreement(base_t: np.ndarray, dev_t: np.ndarray, base: np.ndarray, meta: list,
+                    k: int) -> dict[str, float]:
+    """Pairwise (chosen vs alternative: which is faster) and argmin agreement between two predictors.
+
+    base_t/dev_t: [2, ...] times of (reference, model) for the base day [2, N] and deviations [2, R].
+    """
+    pair = []
+    by_agent: dict[int, np.ndarray] = {}
+    for r, (i, kk) in enumerate(meta):
+        d_ref = dev_t[0, r] - base_t[0, i]
+        d_mod = dev_t[1, r] - base_t[1, i]
+        pair.append((np.sign(d_ref), np.sign(d_mod), abs(d_ref)))
+        tab = by_agent.setdefault(i, np.full((2, k), np.inf))
+        tab[:, kk] = dev_t[:, r]
+        tab[:, base[i]] = base_t[:, i]
+    p = np.array(pair)
+    agree = p[:, 0] == p[:, 1]
+    clear = p[:, 2] >= 0.25  # SUMO difference of at least 15 s
+    argmin = np.mean([t[0].argmin() == t[1].argmin() for t in by_agent.values()])
+    return {
+        "pairs": len(p),
+        "pair_agreement": float(agree.mean()),
+        "pair_agreement_clear": float(agree[clear].mean()) if clear.any() else float("nan"),
+        "clear_pairs": int(clear.sum()),
+        "argmin_agreement": float(argmin),
+    }
+
+
+def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
+             config: SurrogateConfig | None = None, fit: FitConfig | None = None) -> dict:
+    """Calibrate on generated SUMO days, evaluate on held-out ones, write report.md + plots + JSON."""
+    vcfg, config, fit = vcfg or ValidationConfig(), config or SurrogateConfig(), fit or FitConfig()
+    t_start = time.perf_counter()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    static = build_static(scn, config)
+    p0 = init_params(static)
+    c_tr, _ = make_choices(scn, static, p0, vcfg.train_days, seed=1)
+    c_te, kinds = make_choices(scn, static, p0, vcfg.test_days, seed=2)
+    t0 = time.perf_counter()
+    tr = SumoSample.from_days(c_tr, sumo_days(scn, c_tr, vcfg.seed, workers=vcfg.workers))
+    te_days = sumo_days(scn, c_te, vcfg.seed, workers=vcfg.workers)
+    te = SumoSample.from_days(c_te, te_days)
+    t_sumo = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    params = calibrate(scn, tr, config=config, fit=fit, static=static)
+    t_fit = time.perf_counter() - t0
+    np.savez(out_dir / "params.npz", **{k: np.asarray(v) for k, v in params.items()})
+
+    pred0 = np.asarray(predict_jit(p0, static, jnp.asarray(c_te)))
+    pred = np.asarray(predict_jit(params, static, jnp.asarray(c_te)))
+    pred_tr = np.asarray(predict_jit(params, static, jnp.asarray(c_tr)))
+    metrics = {"held_out": error_metrics(pred, te), "uncalibrated": error_metrics(pred0, te),
+               "train": error_metrics(pred_tr, tr)}
+    m = te.arrived
+    rel = np.where(m, (pred - te.travel_time) / te.travel_time, np.nan)
+    dep = np.broadcast_to(scn.agent_depart, rel.shape)
+    fft = np.take_along_axis(scn.fft_full, c_te.T, axis=1).T
+    ratio = te.travel_time / fft
+    metrics["bias_by_depart_min"] = binned_bias(dep[m] / 60, rel[m], np.arange(0, 31 + 5, 5.0))
+    metrics["bias_by_congestion"] = binned_bias(
+        ratio[m], rel[m], np.quantile(ratio[m], [0, 0.2, 0.4, 0.6, 0.8, 1.0]))
+    metrics["by_kind"] = {
+        kd: error_metrics(pred[[i for i, x in enumerate(kinds) if x == kd]],
+                          SumoSample(c_te[[i for i, x in enumerate(kinds) if x == kd]],
+                                     te.travel_time[[i for i, x in enumerate(kinds) if x == kd]],
+                                     te.arrived[[i for i, x in enumerate(kinds) if x == kd]]))
+        for kd in sorted(set(kinds))
+    }
+
+    # Better-route agreement: single-agent deviations from held-out equilibrium-like/perturbed days.
+    rng = np.random.default_rng(vcfg.seed)
+    base_days = [i for i, kd in enumerate(kinds) if kd in ("equilibrium", "perturbed")] or [0]
+    agents = rng.choice(scn.n_agents, size=min(vcfg.deviation_agents, scn.n_agents), replace=False)
+    dev_rows, dev_meta = [], []
+    for j, chunk in enumerate(np.array_split(agents, len(base_days))):
+        if len(chunk) == 0:
+            continue
+        rows, meta = deviation_choices(c_te[base_days[j]], chunk, scn.route_valid)
+        dev_rows.append(rows)
+        dev_meta += [(base_days[j], i, k) for i, k in meta]
+    dev = np.concatenate(dev_rows)
+    t0 = time.perf_counter()
+    dev_sumo = np.stack([d.travel_time for d in sumo_days(scn, dev, vcfg.seed, workers=vcfg.workers)])
+    t_dev = time.perf_counter() - t0
+    dev_sur = np.asarray(predict_jit(params, static, jnp.asarray(dev)))
+    free_t = np.take_along_axis(scn.fft_full, dev.T, axis=1).T  # free-flow predictor as a baseline
+    agree = {"surrogate": [], "free_flow": [], "uncalibrated": []}
+    dev_p0 = np.asarray(predict_jit(p0, static, jnp.asarray(dev)))
+    fft_base = np.take_along_axis(scn.fft_full, c_te.T, axis=1).T
+    for bd in sorted({b for b, _, _ in dev_meta}):
+        sel = [r for r, (b, _, _) in enumerate(dev_meta) if b == bd]
+        meta = [(i, k) for b, i, k in dev_meta if b == bd]
+        ref_base, ref_dev = te.travel_time[bd], dev_sumo[sel, [i for i, _ in meta]]
+        for name, mb, md in (("surrogate", pred[bd], dev_sur), ("uncalibrated", pred0[bd], dev_p0),
+                             ("free_flow", fft_base[bd], free_t)):
+            mod_dev = md[sel, [i for i, _ in meta]]
+            agree[name].append((np.stack([ref_base, mb]), np.stack([ref_dev, mod_dev]), c_te[bd], meta))
+    metrics["route_agreement"] = {name: _pool_agreement(v, scn.k) for name, v in agree.items()}
+
+    # Noise floor: the same deviation experiment for a few agents with another SUMO seed.
+    noise_agents = agents[: vcfg.noise_agents]
+    sel = [r for r, (_, i, _) in enumerate(dev_meta) if i in set(noise_agents.tolist())]
+    if sel:
+        bds = sorted({dev_meta[r][0] for r in sel})
+        base2 = {bd: sumo_days(scn, c_te[bd:bd + 1], vcfg.seed + 1, workers=1)[0].travel_time for bd in bds}
+        dev2 = np.stack([d.travel_time for d in sumo_days(scn, dev[sel], vcfg.seed + 1,
+                                                          workers=vcfg.workers)])
+        items = []
+        for bd in bds:
+            rs = [j for j, r in enumerate(sel) if dev_meta[r][0] == bd]
+            meta = [(dev_meta[sel[j]][1], dev_meta[sel[j]][2]) for j in rs]
+            idx = [i for i, _ in meta]
+            ref = np.stack([te.travel_time[bd], base2[bd]])
+            d = np.stack([dev_sumo[[sel[j] for j in rs], idx], dev2[rs, idx]])
+            items.append((ref, d, c_te[bd], meta))
+        metrics["route_agreement"]["sumo_seed_vs_seed"] = _pool_agreement(items, scn.k)
+        metrics["seed_to_seed_mape_base"] = float(np.mean([
+            np.mean(np.abs(base2[bd] - te.travel_time[bd]) / te.travel_time[bd]) for bd in bds]))
+
+    metrics["timing_s"] = {"sumo_days": round(t_sumo, 1), "calibration": round(t_fit, 1),
+                           "deviation_days": round(t_dev, 1),
+                           "total": round(time.perf_counter() - t_start, 1)}
+    metrics["setup"] = {"network": scn.name, "agents": scn.n_agents, "edges": scn.n_edges,
+                        "sumo_backend": backend_name(), "validation": asdict(vcfg), "model": asdict(config),
+                        "fit": asdict(fit), "test_kinds": kinds, "deviation_days": len(dev)}
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    _plots(out_dir, pred, te, dep, ratio)
+    (out_dir / "report.md").write_text(_report(metrics))
+    return metrics
+
+
+def _pool_agreement(items: list, k: int) -> dict[str, float]:
+    """Agreement pooled over base days (each item: ref/model times for base and deviations)."""
+    stats = [route_agreement(b, d, base, meta, k) for b, d, base, meta in items]
+    n = sum(s["pairs"] for s in stats)
+    nc = sum(s["clear_pairs"] for s in stats)
+    na = sum(len({i for i, _ in it[3]}) for it in items)
+    return {
+        "pairs": n,
+        "pair_agreement": sum(s["pair_agreement"] * s["pairs"] for s in stats) / n,
+        "clear_pairs": nc,
+        "pair_agreement_clear": (sum(s["pair_agreement_clear"] * s["clear_pairs"] for s in stats
+                                     if s["clear_pairs"]) / nc) if nc else float("nan"),
+        "argmin_agreement": sum(s["argmin_agreement"] * len({i for i, _ in it[3]})
+                                for s, it in zip(stats, items, strict=True)) / na,
+    }
+
+
+def _plots(out_dir: Path, pred: np.ndarray, te: SumoSample, dep: np.ndarray, ratio: np.ndarray) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    m = te.arrived
+    y, p = te.travel_time[m], pred[m]
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
+    ax[0].scatter(y, p, s=3, alpha=0.3)
+    hi = float(max(y.max(), p.max()))
+    ax[0].plot([0, hi], [0, hi], "k--", lw=1)
+    ax[0].set(xlabel="SUMO travel time (min)", ylabel="surrogate (min)", title="agent-days, held out")
+    ax[1].scatter(dep[m] / 60, p - y, s=3, alpha=0.3)
+    ax[1].axhline(0, color="k", lw=1)
+    ax[1].set(xlabel="departure (min)", ylabel="surrogate - SUMO (min)", title="residual by departure")
+    ax[2].scatter(ratio[m], (p - y) / y, s=3, alpha=0.3)
+    ax[2].axhline(0, color="k", lw=1)
+    ax[2].set(xlabel="SUMO time / free-flow time", ylabel="relative error", title="by congestion")
+    fig.tight_layout()
+    fig.savefig(out_dir / "scatter_residuals.png", dpi=110)
+    plt.close(fig)
+
+
+def _report(mt: dict) -> str:
+    s = mt["setup"]
+    h, u = mt["held_out"], mt["uncalibrated"]
+    lines = [
+        f"# Surrogate validation: {s['network']}",
+        "",
+        f"{s['agents']} agents, {s['edges']} edges; SUMO backend `{s['sumo_backend']}`; "
+        f"{s['validation']['train_days']} calibration days, {s['validation']['test_days']} held-out days "
+        f"({', '.join(s['test_kinds'])}); {s['deviation_days']} single-agent deviation days.",
+        "",
+        "| metric (held-out days) | calibrated | uncalibrated | target |",
+        "|---|---|---|---|",
+        f"| mean travel time error | {h['mean_tt_error']:.2%} (max {h['mean_tt_error_max']:.2%}) | "
+        f"{u['mean_tt_error']:.2%} | <= 3% |",
+        f"| per agent-day MAPE | {h['mape']:.2%} | {u['mape']:.2%} | <= 10% |",
+        f"| R² (agent-days) | {h['r2']:.3f} | {u['r2']:.3f} | |",
+        f"| bias (mean relative error) | {h['bias']:+.2%} | {u['bias']:+.2%} | |",
+        f"| mean travel time SUMO / surrogate (min) | {h['sumo_mean_tt']:.3f} / "
+        f"{h['surrogate_mean_tt']:.3f} | | |",
+        "",
+        "## Better-route agreement (single-agent deviations re-simulated in SUMO)",
+        "",
+        "| predictor | pairs agree | pairs with |ΔSUMO| ≥ 15 s agree | fastest route agrees |",
+        "|---|---|---|---|",
+    ]
+    for name, a in mt["route_agreement"].items():
+        lines.append(f"| {name} | {a['pair_agreement']:.1%} ({a['pairs']}) | "
+                     f"{a['pair_agreement_clear']:.1%} ({a['clear_pairs']}) | {a['argmin_agreement']:.1%} |")
+    if "seed_to_seed_mape_base" in mt:
+        lines += ["", f"SUMO seed-to-seed per-agent MAPE on the same joint action: "
+                      f"{mt['seed_to_seed_mape_base']:.2%} (noise floor of the per-agent error)."]
+    lines += ["", "## Bias by departure time", "", "| departure (min) | n | bias | MAPE |",
+              "|---|---|---|---|"]
+    lines += [f"| {b['lo']:.0f}–{b['hi']:.0f} | {b['n']} | {b['bias']:+.2%} | {b['mape']:.2%} |"
+              for b in mt["bias_by_depart_min"]]
+    lines += ["", "## Bias by congestion (SUMO time / free-flow time, quintiles)", "",
+              "| ratio | n | bias | MAPE |", "|---|---|---|---|"]
+    lines += [f"| {b['lo']:.2f}–{b['hi']:.2f} | {b['n']} | {b['bias']:+.2%} | {b['mape']:.2%} |"
+              for b in mt["bias_by_congestion"]]
+    lines += ["", "## By kind of joint action", "", "| kind | mean tt error | MAPE | R² |",
+              "|---|---|---|---|"]
+    lines += [f"| {k} | {v['mean_tt_error']:.2%} | {v['mape']:.2%} | {v['r2']:.3f} |"
+              for k, v in mt["by_kind"].items()]
+    t = mt["timing_s"]
+    lines += ["", f"Timing: SUMO days {t['sumo_days']} s, calibration {t['calibration']} s, "
+                  f"deviations {t['deviation_days']} s, total {t['total']} s.", "",
+              "![scatter and residuals](scatter_residuals.png)", ""]
+    return "\n".join(lines)

@@ -1,0 +1,85 @@
+"""Calibration against a small SUMO sample on urb_grid, the refit path, and the SUMO-day cache."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from surrogate.calibrate import FitConfig, SumoSample, calibrate, refit
+from surrogate.data import make_choices
+from surrogate.model import build_static, init_params, predict_jit
+from surrogate.sumo_days import _from_npz, _to_npz, sumo_days
+
+pytestmark = pytest.mark.sumo
+
+
+def _mape(params, static, sample: SumoSample) -> float:
+    pred = np.asarray(predict_jit(params, static, jnp.asarray(sample.choices)))
+    m = sample.arrived
+    return float(np.mean(np.abs(pred - sample.travel_time)[m] / sample.travel_time[m]))
+
+
+def _mean_err(params, static, sample: SumoSample) -> float:
+    pred = np.asarray(predict_jit(params, static, jnp.asarray(sample.choices)))
+    return float(np.mean(np.abs(pred.mean(1) - sample.travel_time.mean(1)) / sample.travel_time.mean(1)))
+
+
+@pytest.fixture(scope="module")
+def grid_days(grid_scenario):
+    scn = grid_scenario
+    static = build_static(scn)
+    p0 = init_params(static)
+    choices, _ = make_choices(scn, static, p0, 10, seed=5)
+    days = sumo_days(scn, choices, 42, workers=1)
+    assert all(d.n == scn.n_agents for d in days)
+    sample = SumoSample.from_days(choices, days)
+    train = SumoSample(sample.choices[:7], sample.travel_time[:7], sample.arrived[:7])
+    test = SumoSample(sample.choices[7:], sample.travel_time[7:], sample.arrived[7:])
+    return scn, static, p0, train, test, days
+
+
+def test_calibration_reduces_held_out_error(grid_days):
+    scn, static, p0, train, test, _ = grid_days
+    params = calibrate(scn, train, fit=FitConfig(steps=200), static=static)
+    before, after = _mape(p0, static, test), _mape(params, static, test)
+    assert after < 0.8 * before, (before, after)
+    assert _mean_err(params, static, test) < max(0.03, 0.5 * _mean_err(p0, static, test))
+    # the data varies (joint actions of several kinds), not one day repeated
+    assert np.unique(train.choices, axis=0).shape[0] == len(train)
+
+
+def test_refit_moves_toward_new_days_and_stays_anchored(grid_days):
+    scn, static, p0, train, test, _ = grid_days
+    # equal sizes: one compiled fit serves both calibrations (shapes and FitConfig are the jit key)
+    old = SumoSample(train.choices[:3], train.travel_time[:3], train.arrived[:3])
+    new = SumoSample(train.choices[3:6], train.travel_time[3:6], train.arrived[3:6])
+    params = calibrate(scn, old, fit=FitConfig(steps=150), static=static)
+    updated = refit(params, scn, new, static=static)
+    assert _mape(updated, static, new) <= _mape(params, static, new) + 1e-4
+    assert _mape(updated, static, test) < _mape(p0, static, test)
+    # anchored: a refit moves parameters less than a fresh fit from the textbook start does
+    fresh = calibrate(scn, new, fit=FitConfig(steps=150), static=static)
+    dist = lambda a, b: sum(float(((a[k] - b[k]) ** 2).sum()) for k in a)  # noqa: E731
+    assert dist(updated, params) < dist(fresh, params)
+    # sample concatenation for "all SUMO days so far"
+    assert len(old + new) == 6
+
+
+def test_day_cache_round_trip(grid_days, tmp_path):
+    *_, days = grid_days
+    path = tmp_path / "d.npz"
+    _to_npz(path, days[0])
+    back = _from_npz(path)
+    np.testing.assert_array_equal(back.travel_time, days[0].travel_time)
+    np.testing.assert_array_equal(back.status, days[0].status)
+    assert back.seed == days[0].seed and back.teleports == days[0].teleports
+
+
+def test_cached_days_are_reused(grid_days):
+    scn, *_ , days = grid_days
+    choices, _ = make_choices(scn, grid_days[1], grid_days[2], 10, seed=5)
+    again = sumo_days(scn, choices[:2], 42, workers=1)  # served from the cache written above
+    for a, b in zip(again, days[:2], strict=True):
+        np.testing.assert_array_equal(a.travel_time, b.travel_time)
+        assert a.wall_time == b.wall_time  # identical record, not a re-run

@@ -1,0 +1,136 @@
+"""The surrogate model: shapes, batching, one-hot vs probabilities, a hand-computed day, gradients."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from surrogate.model import SurrogateConfig, build_static, init_params, predict, predict_jit
+from urb_jax.routes import RouteParams
+from urb_jax.scenario import Scenario
+
+
+@pytest.fixture(scope="module")
+def grid(grid_scenario):
+    static = build_static(grid_scenario, SurrogateConfig(chunk=32))
+    params = init_params(static)
+    # congest the grid so the BPR term matters
+    params = {**params, "log_a_c": params["log_a_c"] + 2.0}
+    return grid_scenario, static, params
+
+
+def _choices(scn, b, seed=0):
+    return np.random.default_rng(seed).integers(0, scn.k, (b, scn.n_agents)).astype(np.int32)
+
+
+def test_shapes_and_batch_equals_per_day_loop(grid):
+    scn, static, params = grid
+    ch = _choices(scn, 70)  # > chunk: padded and mapped over chunks
+    batch = np.asarray(predict_jit(params, static, jnp.asarray(ch)))
+    assert batch.shape == (70, scn.n_agents)
+    assert np.isfinite(batch).all() and (batch > 0).all()
+    loop = np.stack([np.asarray(predict_jit(params, static, jnp.asarray(c))) for c in ch[:: 7]])
+    np.testing.assert_allclose(batch[:: 7], loop, rtol=1e-5)
+    # vmap over days of the unbatched function agrees too
+    vm = np.asarray(jax.jit(jax.vmap(lambda c: predict(params, static, c)))(jnp.asarray(ch[:5])))
+    np.testing.assert_allclose(vm, batch[:5], rtol=1e-5)
+
+
+def test_congestion_is_local_in_time(grid):
+    """Moving other agents changes only the times of agents that travel near them in time."""
+    scn, static, params = grid
+    base = _choices(scn, 1)[0]
+    late = scn.agent_depart >= scn.agent_depart.max() - 120
+    moved = np.where(late, (base + 1) % scn.k, base)
+    t0, t1 = np.asarray(predict_jit(params, static, jnp.asarray(np.stack([base, moved]))))
+    # late agents enter edges at >= 1080 s: bins centred at 1050 s and later (300 s bins). An agent
+    # whose every edge entry is before 750 s only touches bins centred at <= 750 s.
+    assert scn.agent_depart.max() - 120 == 1080
+    early = scn.agent_depart + 1.2 * 60 * scn.fft_full.max(axis=1) < 745
+    assert early.sum() > 10
+    np.testing.assert_allclose(t0[early], t1[early], rtol=1e-6)
+    assert not np.allclose(t0[late], t1[late])
+
+
+def test_one_hot_probabilities_match_indices(grid):
+    scn, static, params = grid
+    ch = _choices(scn, 4, seed=1)
+    probs = np.eye(scn.k, dtype=np.float32)[ch]
+    a = np.asarray(predict_jit(params, static, jnp.asarray(ch)))
+    b = np.asarray(predict_jit(params, static, jnp.asarray(probs)))
+    np.testing.assert_allclose(a, b, rtol=1e-5)
+
+
+def _tiny_scenario(tmp_path, capacity_vph=12.0) -> Scenario:
+    """3 edges, 2 agents from e0: route 0 = e0 e1, route 1 = e0 e2; both leave at 150 s."""
+    net = tmp_path / "tiny.net.xml"
+    net.write_text(
+        '<net><edge id="e0" from="a" to="b"/><edge id="e1" from="b" to="c"/><edge id="e2" from="b" to="d"/>'
+        '<junction id="b" type="priority"/><junction id="c" type="dead_end"/>'
+        '<junction id="d" type="dead_end"/></net>'
+    )
+    routes = np.array([[[0, 1], [0, 2], [0, 2], [0, 2]]], dtype=np.int32)
+    return Scenario(
+        name="tiny", net_file=str(net), env_seed=0, route_params=RouteParams(),
+        edge_ids=("e0", "e1", "e2"), edge_length=np.array([3000.0, 1000.0, 1000.0]),
+        edge_speed=np.array([10.0, 10.0, 10.0]), edge_lanes=np.array([1, 1, 1]),
+        edge_priority=np.array([1, 1, 1]), edge_type=("t", "t", "t"),
+        edge_capacity=np.full(3, capacity_vph),
+        od_origin=np.array([0]), od_destination=np.array([0]), od_origin_edge=("e0",),
+        od_destination_edge=("e1",), od_routes=routes, od_route_len=np.array([[2, 2, 2, 2]]),
+        od_route_valid=np.array([[True, True, False, False]]),
+        od_fft=np.zeros((1, 4)), od_fft_full=np.zeros((1, 4)), od_route_length=np.zeros((1, 4)),
+        agent_id=np.array([0, 1]), agent_od=np.array([0, 0]), agent_origin=np.array([0, 0]),
+        agent_destination=np.array([0, 0]), agent_depart=np.array([150, 150]),
+        agent_kind=("Human", "Human"),
+    )
+
+
+def test_hand_computed_two_agents_sharing_an_edge(tmp_path):
+    """Bins of 300 s, entries at bin centres: e0 at 150 s (bin 0), e1/e2 at 150+300 s (bin 1).
+
+    Capacity 12 veh/h = 1 vehicle per bin, a = 0.15, p = 4, no junction delay, insertion 2 s per
+    same-origin departure (load 2), intercept 1 s.
+      both on route 0: each edge x=2: (300 + 100) * (1 + 0.15*16) + 4 + 1 = 1365 s = 22.75 min
+      agent 1 on route 1: e0 x=2 (1020 s), e1/e2 x=1 (115 s): 1020 + 115 + 5 = 1140 s = 19 min
+    """
+    scn = _tiny_scenario(tmp_path)
+    static = build_static(scn, SurrogateConfig(bin_s=300.0, entry_scale=1.0))
+    params = init_params(static)
+    params = {**params, "log_a_c": jnp.log(jnp.array([0.15])), "log_junc_j": jnp.full(4, -40.0),
+              "log_ins": jnp.log(jnp.array(2.0)), "intercept": jnp.array(1.0)}
+    out = np.asarray(predict_jit(params, static, jnp.array([[0, 0], [0, 1]])))
+    np.testing.assert_allclose(out, [[22.75, 22.75], [19.0, 19.0]], rtol=1e-5)
+    # probabilities 50/50 for agent 1: e1 and e2 each carry 1.5 resp. 0.5 vehicles
+    probs = jnp.array([[[1.0, 0, 0, 0], [0.5, 0.5, 0, 0]]])
+    e0 = 300 * (1 + 0.15 * 2.0**4)
+    t_a0 = e0 + 100 * (1 + 0.15 * 1.5**4) + 5
+    t_a1 = 0.5 * (e0 + 100 * (1 + 0.15 * 1.5**4)) + 0.5 * (e0 + 100 * (1 + 0.15 * 0.5**4)) + 5
+    np.testing.assert_allclose(np.asarray(predict_jit(params, static, probs))[0],
+                               np.array([t_a0, t_a1]) / 60, rtol=1e-5)
+
+
+def test_grad_wrt_logits_matches_finite_differences(grid):
+    scn, static, params = grid
+    rng = np.random.default_rng(3)
+    logits = jnp.asarray(rng.normal(size=(scn.n_agents, scn.k)).astype(np.float32))
+    group = jnp.asarray(rng.random(scn.n_agents) < 0.3)
+
+    def group_time(lg):
+        t = predict(params, static, jax.nn.softmax(lg, axis=-1))
+        return jnp.where(group, t, 0.0).sum()
+
+    g = jax.grad(group_time)(logits)
+    f = jax.jit(group_time)
+    for s in range(3):
+        v = jnp.asarray(np.random.default_rng(10 + s).normal(size=logits.shape).astype(np.float32))
+        eps = 1e-2
+        fd = (f(logits + eps * v) - f(logits - eps * v)) / (2 * eps)
+        an = float((g * v).sum())
+        assert abs(float(fd) - an) <= 2e-2 * abs(an) + 1e-3, (float(fd), an)
+    # a single coordinate (one agent's logit) as well
+    e = jnp.zeros_like(logits).at[5, 1].set(1.0)
+    fd = (f(logits + 1e-2 * e) - f(logits - 1e-2 * e)) / 2e-2
+    assert abs(float(fd) - float(g[5, 1])) <= 3e-2 * abs(float(g[5, 1])) + 1e-3

@@ -1,0 +1,43 @@
+"""Validation metrics on hand-made numbers (the SUMO-driven part is exercised by the command)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from surrogate.calibrate import SumoSample
+from surrogate.validate import deviation_choices, error_metrics, route_agreement
+
+
+def test_error_metrics_hand_case():
+    y = np.array([[2.0, 4.0], [3.0, 3.0]], dtype=np.float32)
+    pred = np.array([[2.2, 3.8], [3.0, 3.3]], dtype=np.float32)
+    m = error_metrics(pred, SumoSample(np.zeros((2, 2), np.int32), y, np.ones((2, 2), bool)))
+    # day means: 3.0 vs 3.0 (0%), 3.0 vs 3.15 (5%)
+    assert abs(m["mean_tt_error"] - 0.025) < 1e-6
+    assert abs(m["mape"] - np.mean([0.1, 0.05, 0.0, 0.1])) < 1e-6
+    # removed vehicles are excluded
+    arrived = np.array([[True, False], [True, True]])
+    m2 = error_metrics(pred, SumoSample(np.zeros((2, 2), np.int32), y, arrived))
+    assert m2["removed"] == 1 and abs(m2["mape"] - np.mean([0.1, 0.0, 0.1])) < 1e-6
+
+
+def test_deviation_choices_switch_one_agent_each():
+    base = np.array([0, 1, 2])
+    valid = np.array([[True, True, False], [True, True, True], [True, True, True]])
+    rows, meta = deviation_choices(base, np.array([0, 2]), valid)
+    assert meta == [(0, 1), (2, 0), (2, 1)]
+    for row, (i, k) in zip(rows, meta, strict=True):
+        assert row[i] == k and np.array_equal(np.delete(row, i), np.delete(base, i))
+
+
+def test_route_agreement_counts_signs_and_argmin():
+    base = np.array([0, 0])
+    meta = [(0, 1), (0, 2), (1, 1)]
+    # reference: agent 0 route 1 faster (-1), route 2 slower (+2); agent 1 route 1 slower (+0.1)
+    base_t = np.array([[5.0, 4.0], [5.0, 4.0]])
+    dev_t = np.array([[4.0, 7.0, 4.1], [4.5, 4.0, 3.9]])  # model: -0.5, -1.0 (wrong), -0.1 (wrong)
+    a = route_agreement(base_t, dev_t, base, meta, k=3)
+    assert a["pairs"] == 3 and abs(a["pair_agreement"] - 1 / 3) < 1e-9
+    assert a["clear_pairs"] == 2 and abs(a["pair_agreement_clear"] - 0.5) < 1e-9
+    # fastest: agent 0 ref route 1, model route 2 (disagree); agent 1 ref route 0, model route 1
+    assert a["argmin_agreement"] == 0.0

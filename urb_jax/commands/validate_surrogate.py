@@ -1,0 +1,39 @@
+"""`urb-jax validate-surrogate`: calibrate the surrogate on SUMO days, report its error on held-out ones."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from urb_jax.commands.common import add_network_flags
+from urb_jax.scenario import load_scenario
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("validate-surrogate",
+                            help="calibrate the surrogate and compare it with SUMO on held-out days")
+    add_network_flags(parser)
+    parser.add_argument("--days", type=int, default=10, help="held-out SUMO days (default 10)")
+    parser.add_argument("--train-days", type=int, default=40, help="calibration SUMO days (default 40)")
+    parser.add_argument("--agents", type=int, default=30,
+                        help="agents whose single-route deviations are re-simulated (default 30)")
+    parser.add_argument("--workers", type=int, default=2, help="SUMO days run in parallel (default 2)")
+    parser.add_argument("--out", default=None,
+                        help="results folder (default results/surrogate_validation/<net>)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from surrogate.validate import ValidationConfig, validate
+
+    scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed)
+    out = Path(args.out) if args.out else Path("results") / "surrogate_validation" / scn.name
+    vcfg = ValidationConfig(train_days=args.train_days, test_days=args.days,
+                            deviation_agents=args.agents, noise_agents=max(1, args.agents // 3),
+                            seed=args.env_seed, workers=args.workers)
+    metrics = validate(scn, out, vcfg)
+    print(json.dumps({"held_out": metrics["held_out"], "route_agreement": metrics["route_agreement"]},
+                     indent=2))
+    print(f"report: {out / 'report.md'}")
+    return 0
