@@ -8,4 +8,6 @@ COMMANDS = [
     "urb_jax.commands.scenario",
     "urb_jax.commands.sumo_day",
     "urb_jax.commands.validate_surrogate",
+    "urb_jax.commands.baseline",
+    "urb_jax.commands.leaderboard",
 ]

@@ -1,0 +1,127 @@
+"""Results folder: atomic record parts, compaction, refusal to overwrite, CLI and leaderboard."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from fakeday import FakeDay
+
+from urb_jax.cli import main
+from urb_jax.commands.baseline import run_baseline
+from urb_jax.experiment import DayRecord
+from urb_jax.leaderboard import aggregate, collect
+from urb_jax.results import (
+    PARTS_DIR,
+    RECORDS_FILE,
+    RecordsWriter,
+    ResultsExistError,
+    create_results_dir,
+    read_records,
+)
+
+TINY = {"human_learning_episodes": 3, "training_eps": 2, "test_eps": 2}
+
+
+def _day(day, n=4, cav=None):
+    fake = FakeDay()
+
+    class S:  # the fields FakeDay reads
+        agent_od = np.zeros(n, np.int32)
+        k = 2
+        fft = np.tile([[1.0, 2.0]], (n, 1))
+        od_route_length = np.array([[100.0, 200.0]])
+
+    choices = np.arange(n) % 2
+    is_cav = np.zeros(n, bool) if cav is None else cav
+    obs = None if cav is None else np.where(is_cav[:, None], np.arange(n * 3).reshape(n, 3), np.nan)
+    res = fake(S, choices, seed=0)
+    return DayRecord(day, "human" if cav is None else "train", choices, is_cav, res, -res.travel_time, obs)
+
+
+def test_parts_are_atomic_and_compacted(tmp_path):
+    w = RecordsWriter(tmp_path, np.array([5, 6, 7, 8]), np.zeros(4), np.array([0, 1, 2, 3]), flush_every=2)
+    for d in (1, 2, 3):
+        w.add(_day(d))
+    # a crashed run: 2 days flushed as one part, day 3 pending, plus a stray temp file
+    (tmp_path / PARTS_DIR / ".part.junk.tmp").write_bytes(b"half a file")
+    assert sorted(read_records(tmp_path)["day"].unique()) == [1, 2]
+    cav = np.array([False, True, False, True])
+    w.add(_day(4, cav=cav))
+    path = w.close()
+    assert path.name == RECORDS_FILE and not (tmp_path / PARTS_DIR).exists()
+    df = read_records(tmp_path)
+    assert len(df) == 16 and sorted(df["day"].unique()) == [1, 2, 3, 4]
+    d4 = df[df.day == 4].set_index("agent")
+    assert d4.loc[6, "observation"].tolist() == [3.0, 4.0, 5.0] and d4.loc[5, "observation"] is None
+    assert d4.loc[6, "kind"] == "CAV" and d4.loc[5, "kind"] == "HDV"
+    assert df[df.day == 1]["observation"].isna().all()
+
+
+def test_refuses_to_overwrite(tmp_path):
+    p = create_results_dir(tmp_path, "exp")
+    (p / "marker").write_text("x")
+    with pytest.raises(ResultsExistError, match="--overwrite"):
+        create_results_dir(tmp_path, "exp")
+    assert (p / "marker").exists()
+    create_results_dir(tmp_path, "exp", overwrite=True)
+    assert not (p / "marker").exists()
+
+
+def test_baseline_run_writes_results_folder_and_leaderboard(tmp_path):
+    for seed in (1, 2):
+        out = run_baseline(model="random", task_conf="config1", results_dir=str(tmp_path), env_seed=seed,
+                           progress=False, day_fn=FakeDay(), task_overrides=TINY)
+    folder = out["folder"]
+    cfg = json.loads((folder / "exp_config.json").read_text())
+    assert cfg["status"] == "done" and cfg["env_seed"] == 2 and cfg["baseline_model"] == "random"
+    assert cfg["network"] == "urb_grid" and cfg["human_learning_episodes"] == 3 and "versions" in cfg
+    bm = pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv")
+    assert {"t_pre", "t_CAV", "t_HDV_test", "winrate", "cost_of_learning", "avg_speed_test"} <= set(
+        bm.columns)
+    assert len(pd.read_csv(folder / "metrics" / "VectorMetrics.csv")) == 4
+    assert (folder / "plots" / "travel_times.png").stat().st_size > 1000
+    assert read_records(folder)["day"].max() == 7
+    with pytest.raises(ResultsExistError):
+        run_baseline(model="random", task_conf="config1", results_dir=str(tmp_path), env_seed=2,
+                     progress=False, day_fn=FakeDay(), task_overrides=TINY)
+    table = aggregate(collect(tmp_path))
+    assert len(table) == 1 and table.loc[0, "runs"] == 2
+    runs = collect(tmp_path)
+    assert table.loc[0, "t_CAV_mean"] == pytest.approx(runs["t_CAV"].mean())
+    assert table.loc[0, "WR"] == pytest.approx(100 * runs["winrate"].mean())
+    assert main(["leaderboard", str(tmp_path)]) == 0
+    assert "baseline_random" in (tmp_path / "leaderboard.md").read_text()
+
+
+def test_cli_refusal_is_a_clean_error(tmp_path, capsys):
+    (tmp_path / "taken").mkdir()
+    code = main(["baseline", "--results-dir", str(tmp_path), "--id", "taken", "--no-progress"])
+    assert code == 2 and "already exist" in capsys.readouterr().err
+
+
+def test_human_phase_replay_matches_a_fresh_run(tmp_path):
+    """A random run replaying an aon run's human phase: no SUMO calls for days 1..H, identical
+    human-phase records and t_pre; a tampered source is refused."""
+    from urb_jax.errors import UrbJaxError
+
+    src = run_baseline(model="aon", results_dir=str(tmp_path), exp_id="src", progress=False,
+                       day_fn=FakeDay(), task_overrides=TINY)
+    fresh = run_baseline(model="random", results_dir=str(tmp_path), exp_id="fresh", progress=False,
+                         day_fn=FakeDay(), task_overrides=TINY)
+    fake = FakeDay()
+    replayed = run_baseline(model="random", results_dir=str(tmp_path), exp_id="replayed", progress=False,
+                            day_fn=fake, task_overrides=TINY, human_phase_from="src")
+    assert len(fake.calls) == 2 + 2  # training + test days only
+    a, b = read_records(fresh["folder"]), read_records(replayed["folder"])
+    pd.testing.assert_frame_equal(a, b)
+    assert replayed["metrics"]["t_pre"] == src["metrics"]["t_pre"]
+    with pytest.raises(UrbJaxError, match="env_seed"):
+        run_baseline(model="random", results_dir=str(tmp_path), exp_id="other_seed", env_seed=5,
+                     progress=False, day_fn=FakeDay(), task_overrides=TINY, human_phase_from="src")
+    rec = read_records(src["folder"])
+    rec.loc[(rec.day == 2) & (rec.agent == rec.agent.iloc[0]), "action"] += 1
+    rec.to_parquet(src["folder"] / "records.parquet")
+    with pytest.raises(UrbJaxError, match="day 2"):
+        run_baseline(model="random", results_dir=str(tmp_path), exp_id="tampered", progress=False,
+                     day_fn=FakeDay(), task_overrides=TINY, human_phase_from="src")

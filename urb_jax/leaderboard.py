@@ -1,0 +1,70 @@
+"""Aggregate runs over seeds: mean and std per metric, WR in %, as Markdown and CSV.
+
+Runs are grouped like URB's leaderboard generator: same network, task config, env config and
+algorithm (or baseline model); each run contributes the first row of its BenchmarkMetrics.csv.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from urb_jax.errors import UrbJaxError
+
+KEYS = ["network", "algorithm", "task_config", "env_config"]
+SHOWN = ["t_pre", "t_CAV", "t_HDV_test", "t_test", "cost_of_learning", "delta_V", "delta_L",
+         "CAV_advantage", "Effect_of_change", "Effect_of_remaining"]
+
+
+def collect(results_dir: str | os.PathLike) -> pd.DataFrame:
+    """One row per finished run under results_dir (config keys + metrics)."""
+    rows = []
+    for cfg_path in sorted(Path(results_dir).glob("*/exp_config.json")):
+        metrics_path = cfg_path.parent / "metrics" / "BenchmarkMetrics.csv"
+        if not metrics_path.is_file():
+            continue
+        cfg = json.loads(cfg_path.read_text())
+        metrics = pd.read_csv(metrics_path).iloc[0].to_dict()
+        algorithm = cfg.get("algorithm") or f"baseline_{cfg.get('baseline_model', '?')}"
+        rows.append({"exp_id": cfg_path.parent.name, "network": cfg.get("network", "?"),
+                     "algorithm": algorithm, "task_config": cfg.get("task_config", "?"),
+                     "env_config": cfg.get("env_config", "?"), "env_seed": cfg.get("env_seed"),
+                     **metrics})
+    if not rows:
+        raise UrbJaxError(
+            f"{results_dir}: no finished runs (exp_config.json + metrics/BenchmarkMetrics.csv)."
+        )
+    return pd.DataFrame(rows)
+
+
+def aggregate(runs: pd.DataFrame) -> pd.DataFrame:
+    """Mean and std over seeds per group; WR = % of runs with winrate 1."""
+    out = []
+    for key, g in runs.groupby(KEYS, sort=True):
+        row = dict(zip(KEYS, key, strict=True))
+        row["runs"] = len(g)
+        row["WR"] = float(100.0 * g["winrate"].mean()) if g["winrate"].notna().any() else np.nan
+        for m in SHOWN:
+            if m in g:
+                vals = pd.to_numeric(g[m], errors="coerce")
+                row[f"{m}_mean"] = vals.mean()
+                row[f"{m}_std"] = vals.std(ddof=0) if vals.notna().any() else np.nan
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def to_markdown(table: pd.DataFrame) -> str:
+    head = ["network", "algorithm", "task", "runs", "WR %", *SHOWN]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for _, r in table.iterrows():
+        cells = [str(r["network"]), str(r["algorithm"]), str(r["task_config"]), str(r["runs"]),
+                 "N/A" if pd.isna(r["WR"]) else f"{r['WR']:.0f}"]
+        for m in SHOWN:
+            mean, std = r.get(f"{m}_mean", np.nan), r.get(f"{m}_std", np.nan)
+            cells.append("N/A" if pd.isna(mean) else f"{mean:.3f} ± {std:.3f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,163 @@
+"""URB KPIs from a per-day records table (URB_REFERENCE §10), with the paper's definitions.
+
+Input: one row per (day, agent) with columns day (1-based), agent, kind ('HDV'/'CAV' that day),
+action, travel_time (min), route_length (m), speed (m/s, NaN if removed), duration (s),
+time_loss (s), depart_delay (s), status (0 = arrived). Slices: pre = days in (H-50, H] (every
+day, not every 5th), train = (H, H+T], test = > H+T, post = > H. Groups are the kinds on the
+last day. Differences from URB's code (the paper wins; see docs/metrics.md):
+
+* cost of learning c_X = mean over agents i in X and train days d of (t_i,d - mean_pre t_i)
+  (URB code: mean over agents of max - min over train days);
+* every day of a slice is counted; speeds and mileages are per-day means over arrived trips
+  (SUMO's statistic output definition) computed from the per-agent rows;
+* delta_V / delta_L (paper) are added as columns.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+PRE_WINDOW = 50
+
+BENCHMARK_COLUMNS = [
+    "t_pre", "t_test", "t_train", "t_CAV", "t_HDV_pre", "t_HDV_test",
+    "CAV_advantage", "Effect_of_change", "Effect_of_remaining",
+    "avg_speed_pre", "avg_speed_test", "avg_mileage_pre", "avg_mileage_test",
+    "winrate", "cost_of_learning", "cost_of_learning_humans", "cost_of_learning_CAVs",
+    "avg_time_lost", "avg_human_time_lost", "avg_CAV_time_lost", "diff_sumo_routerl",
+    "delta_V", "delta_L", "instability_humans_test", "instability_CAVs_test",
+]
+
+
+def _nan() -> float:
+    return float("nan")
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if (not math.isnan(a) and not math.isnan(b) and b != 0) else _nan()
+
+
+def _wide(records: pd.DataFrame, column: str) -> pd.DataFrame:
+    return records.pivot(index="day", columns="agent", values=column).sort_index()
+
+
+def _slice_mean(wide: pd.DataFrame, days: np.ndarray, agents: np.ndarray) -> float:
+    """Mean over days of the mean over `agents` (URB's mean over a set in a slice)."""
+    if len(days) == 0 or len(agents) == 0:
+        return _nan()
+    return float(wide.loc[days, agents].mean(axis=1).mean())
+
+
+def slices(days: np.ndarray, human_days: int, training_days: int) -> dict[str, np.ndarray]:
+    H, T = human_days, training_days
+    return {
+        "pre": days[(days > H - PRE_WINDOW) & (days <= H)],
+        "train": days[(days > H) & (days <= H + T)],
+        "test": days[days > H + T],
+        "post": days[days > H],
+    }
+
+
+def groups(records: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """(HDV agents, CAV agents) by their kind on the last day."""
+    last = records[records["day"] == records["day"].max()]
+    cav = np.sort(last.loc[last["kind"] == "CAV", "agent"].to_numpy())
+    hdv = np.sort(last.loc[last["kind"] != "CAV", "agent"].to_numpy())
+    return hdv, cav
+
+
+def day_stats(records: pd.DataFrame) -> pd.DataFrame:
+    """Per-day SUMO statistics over arrived trips: speed m/s, route length m, duration s,
+    time loss s, depart delay s (means, as SUMO's statistic output)."""
+    arrived = records[records["status"] == 0]
+    g = arrived.groupby("day")
+    return pd.DataFrame({
+        "speed": g["speed"].mean(),
+        "route_length": g["route_length"].mean(),
+        "duration": g["duration"].mean(),
+        "time_loss": g["time_loss"].mean(),
+        "depart_delay": g["depart_delay"].mean(),
+    }).reindex(np.sort(records["day"].unique()))
+
+
+def compute_metrics(records: pd.DataFrame, human_days: int, training_days: int) -> dict[str, float]:
+    """BenchmarkMetrics (URB column names, minutes / km/h / km) from a records table."""
+    tt = _wide(records, "travel_time")
+    days = tt.index.to_numpy()
+    s = slices(days, human_days, training_days)
+    hdv, cav = groups(records)
+    every = tt.columns.to_numpy()
+    m: dict[str, float] = {}
+    m["t_pre"] = _slice_mean(tt, s["pre"], every)
+    m["t_train"] = _slice_mean(tt, s["train"], every)
+    m["t_test"] = _slice_mean(tt, s["test"], every)
+    m["t_CAV"] = _slice_mean(tt, s["test"], cav)
+    m["t_HDV_pre"] = _slice_mean(tt, s["pre"], hdv)
+    m["t_HDV_test"] = _slice_mean(tt, s["test"], hdv)
+    m["CAV_advantage"] = _ratio(m["t_HDV_test"], m["t_CAV"])
+    m["Effect_of_change"] = _ratio(m["t_HDV_pre"], m["t_CAV"])
+    m["Effect_of_remaining"] = _ratio(m["t_HDV_pre"], m["t_HDV_test"])
+
+    ds = day_stats(records)
+
+    def stat(col: str, sl: str, scale: float) -> float:
+        d = s[sl]
+        return float(ds.loc[d, col].mean() * scale) if len(d) else _nan()
+
+    m["avg_speed_pre"] = stat("speed", "pre", 3.6)
+    m["avg_speed_test"] = stat("speed", "test", 3.6)
+    m["avg_mileage_pre"] = stat("route_length", "pre", 1e-3)
+    m["avg_mileage_test"] = stat("route_length", "test", 1e-3)
+    undefined = math.isnan(m["t_CAV"]) or math.isnan(m["t_pre"])
+    m["winrate"] = _nan() if undefined else float(m["t_CAV"] < m["t_pre"])
+
+    # Cost of learning (paper): mean excess over each agent's pre-CAV mean during training.
+    pre_mean = tt.loc[s["pre"]].mean(axis=0) if len(s["pre"]) else pd.Series(np.nan, index=every)
+    excess_train = tt.loc[s["train"]] - pre_mean
+    lost_post = tt.loc[s["post"]] - pre_mean
+
+    def cell_mean(frame: pd.DataFrame, agents: np.ndarray) -> float:
+        if frame.shape[0] == 0 or len(agents) == 0:
+            return _nan()
+        return float(np.nanmean(frame[agents].to_numpy()))
+
+    m["cost_of_learning"] = cell_mean(excess_train, every)
+    m["cost_of_learning_humans"] = cell_mean(excess_train, hdv)
+    m["cost_of_learning_CAVs"] = cell_mean(excess_train, cav)
+    # URB: avg_time_lost = mean over agents of the per-agent SUM over post days; HDV/CAV: cell means.
+    m["avg_time_lost"] = float(lost_post.sum(axis=0).mean()) if lost_post.shape[0] else _nan()
+    m["avg_human_time_lost"] = cell_mean(lost_post, hdv)
+    m["avg_CAV_time_lost"] = cell_mean(lost_post, cav)
+    m["diff_sumo_routerl"] = (stat("duration", "test", 1 / 60) - m["t_test"]) if len(s["test"]) else _nan()
+    m["delta_V"] = m["avg_speed_test"] - m["avg_speed_pre"]
+    m["delta_L"] = m["avg_mileage_test"] - m["avg_mileage_pre"]
+    vec = vector_metrics(records, human_days, training_days)
+    test_vec = vec[vec["episode"].isin(s["test"])]
+    m["instability_humans_test"] = float(test_vec["instability_humans"].mean()) if len(hdv) else _nan()
+    m["instability_CAVs_test"] = float(test_vec["instability_CAVs"].mean()) if len(cav) else _nan()
+    return {k: m[k] for k in BENCHMARK_COLUMNS}
+
+
+def vector_metrics(records: pd.DataFrame, human_days: int, training_days: int) -> pd.DataFrame:
+    """One row per post-mutation day: action changes vs the previous day per group (URB's
+    instability, every day instead of every 5th), SUMO mean timeLoss + departDelay (s), and the
+    summed excess over each agent's pre mean (min)."""
+    act = _wide(records, "action")
+    tt = _wide(records, "travel_time")
+    days = act.index.to_numpy()
+    s = slices(days, human_days, training_days)
+    hdv, cav = groups(records)
+    changed = act.ne(act.shift(1)) & act.shift(1).notna()
+    pre_mean = tt.loc[s["pre"]].mean(axis=0) if len(s["pre"]) else pd.Series(np.nan, index=tt.columns)
+    ds = day_stats(records)
+    post = s["post"]
+    return pd.DataFrame({
+        "episode": post.astype(int),
+        "instability_humans": changed.loc[post, hdv].sum(axis=1).to_numpy().astype(int),
+        "instability_CAVs": changed.loc[post, cav].sum(axis=1).to_numpy().astype(int),
+        "avg_time_lost": (ds.loc[post, "time_loss"] + ds.loc[post, "depart_delay"]).to_numpy(),
+        "time_excess": (tt.loc[post] - pre_mean).sum(axis=1).to_numpy(),
+    })

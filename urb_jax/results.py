@@ -1,0 +1,248 @@
+"""results/<exp_id>/: exp_config.json, per-day records, metrics and plots.
+
+Records are written incrementally as Parquet parts under `records.parts/` (each part written to a
+temporary name and renamed, so a reader never sees half a part); `close()` compacts them into
+one `records.parquet` (again via rename) and removes the parts. A crashed run leaves readable
+complete parts; `read_records` reads either form.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from urb_jax.errors import UrbJaxError
+from urb_jax.experiment import DayRecord
+
+RECORDS_FILE = "records.parquet"
+PARTS_DIR = "records.parts"
+
+
+class ResultsExistError(UrbJaxError):
+    """The experiment id is taken."""
+
+
+def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = False) -> Path:
+    """A fresh results/<exp_id>/; refuses an existing one unless `overwrite`."""
+    path = Path(root) / exp_id
+    if path.exists():
+        if not overwrite:
+            raise ResultsExistError(
+                f"{path}: results for experiment id '{exp_id}' already exist. "
+                "Fix: pass another --id, or --overwrite to replace them."
+            )
+        shutil.rmtree(path)
+    path.mkdir(parents=True)
+    return path
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600; results are meant to be shared
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def write_json(path: Path, obj: Any) -> None:
+    atomic_write_bytes(path, (json.dumps(obj, indent=2, default=_json_default) + "\n").encode())
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, tuple):
+        return list(o)
+    return str(o)
+
+
+def versions() -> dict[str, str]:
+    """Installed versions (from package metadata: importing libsumo just to ask is costly)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for dist in ("urb-jax", "jax", "numpy", "pandas", "pyarrow", "eclipse-sumo", "libsumo", "janux"):
+        try:
+            out[dist] = version(dist)
+        except PackageNotFoundError:
+            out[dist] = "absent"
+    return out
+
+
+SCHEMA = pa.schema([
+    ("day", pa.int32()), ("phase", pa.string()), ("agent", pa.int64()), ("kind", pa.string()),
+    ("od", pa.int32()), ("start_time", pa.int32()), ("action", pa.int8()),
+    ("travel_time", pa.float32()), ("route_length", pa.float32()), ("speed", pa.float32()),
+    ("duration", pa.float32()), ("time_loss", pa.float32()), ("depart_delay", pa.float32()),
+    ("status", pa.int8()), ("reward", pa.float32()), ("observation", pa.list_(pa.float32())),
+    ("sumo", pa.bool_()),
+])
+
+
+class RecordsWriter:
+    """Collects DayRecords and flushes Parquet parts every `flush_every` days."""
+
+    def __init__(self, folder: str | os.PathLike, agent_id: np.ndarray, agent_od: np.ndarray,
+                 agent_depart: np.ndarray, flush_every: int = 25) -> None:
+        self.folder = Path(folder)
+        self.parts = self.folder / PARTS_DIR
+        self.parts.mkdir(parents=True, exist_ok=True)
+        self.agent_id = np.asarray(agent_id, dtype=np.int64)
+        self.agent_od = np.asarray(agent_od, dtype=np.int32)
+        self.agent_depart = np.asarray(agent_depart, dtype=np.int32)
+        self.flush_every = flush_every
+        self._pending: list[pa.RecordBatch] = []
+        self._n_parts = 0
+        self.days_written = 0
+
+    def __call__(self, rec: DayRecord) -> None:
+        self.add(rec)
+
+    def add(self, rec: DayRecord) -> None:
+        n = self.agent_id.shape[0]
+        r = rec.result
+        if rec.observations is None:
+            obs = pa.nulls(n, pa.list_(pa.float32()))
+        else:
+            o = np.asarray(rec.observations, dtype=np.float32)
+            flat = pa.array(o.reshape(-1), pa.float32())
+            offsets = pa.array(np.arange(0, o.size + 1, o.shape[1], dtype=np.int32))
+            mask = pa.array(~rec.is_cav)
+            obs = pa.ListArray.from_arrays(offsets, flat, mask=mask)
+        cols = [
+            pa.array(np.full(n, rec.day, np.int32)), pa.array([rec.phase] * n, pa.string()),
+            pa.array(self.agent_id), pa.array(np.where(rec.is_cav, "CAV", "HDV")),
+            pa.array(self.agent_od), pa.array(self.agent_depart),
+            pa.array(np.asarray(rec.choices, np.int8)),
+            *(pa.array(np.asarray(getattr(r, f), np.float32)) for f in
+              ("travel_time", "route_length", "mean_speed", "duration", "time_loss", "depart_delay")),
+            pa.array(np.asarray(r.status, np.int8)), pa.array(np.asarray(rec.rewards, np.float32)),
+            obs, pa.array(np.full(n, rec.sumo)),
+        ]
+        self._pending.append(pa.RecordBatch.from_arrays(cols, schema=SCHEMA))
+        if len(self._pending) >= self.flush_every:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self._pending:
+            return
+        table = pa.Table.from_batches(self._pending, schema=SCHEMA)
+        path = self.parts / f"part-{self._n_parts:05d}.parquet"
+        fd, tmp = tempfile.mkstemp(dir=self.parts, prefix=".part.", suffix=".tmp")
+        os.close(fd)
+        try:
+            pq.write_table(table, tmp, compression="zstd")
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        self._n_parts += 1
+        self.days_written += len(self._pending)
+        self._pending = []
+
+    def close(self) -> Path:
+        """Flush and compact every part into one records.parquet (atomic)."""
+        self.flush()
+        target = self.folder / RECORDS_FILE
+        parts = sorted(self.parts.glob("part-*.parquet"))
+        fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=".records.", suffix=".tmp")
+        os.close(fd)
+        try:
+            with pq.ParquetWriter(tmp, SCHEMA, compression="zstd") as writer:
+                for p in parts:
+                    writer.write_table(pq.read_table(p, schema=SCHEMA))
+            os.replace(tmp, target)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        shutil.rmtree(self.parts)
+        return target
+
+
+def read_records(folder: str | os.PathLike, columns: Sequence[str] | None = None) -> pd.DataFrame:
+    """The records of a run: records.parquet, or the complete parts of an unfinished run."""
+    folder = Path(folder)
+    cols = list(columns) if columns else None
+    if (folder / RECORDS_FILE).is_file():
+        return pq.read_table(folder / RECORDS_FILE, columns=cols).to_pandas()
+    parts = sorted((folder / PARTS_DIR).glob("part-*.parquet"))
+    if not parts:
+        raise UrbJaxError(f"{folder}: no {RECORDS_FILE} and no complete record parts.")
+    return pa.concat_tables([pq.read_table(p, columns=cols) for p in parts]).to_pandas()
+
+
+def write_metrics(folder: Path, metrics: dict[str, float], vector: pd.DataFrame) -> None:
+    out = folder / "metrics"
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out / "BenchmarkMetrics.csv", pd.DataFrame([metrics]).to_csv(index=False).encode())
+    atomic_write_bytes(out / "VectorMetrics.csv", vector.to_csv(index=False).encode())
+
+
+def write_plots(folder: Path, records: pd.DataFrame, human_days: int, training_days: int,
+                smooth_by: int = 1) -> list[Path]:
+    """Mean travel time per day by group with phase backgrounds; CAV vs HDV test distributions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = folder / "plots"
+    out.mkdir(parents=True, exist_ok=True)
+    H, T = human_days, training_days
+    last_day = int(records["day"].max())
+    final_kind = records[records["day"] == last_day].set_index("agent")["kind"]
+    rec = records.assign(group=records["agent"].map(final_kind))
+    per_day = rec.groupby(["day", "group"])["travel_time"].mean().unstack()
+    per_day["all"] = rec.groupby("day")["travel_time"].mean()
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    for start, end, label, color in ((0.5, H + 0.5, "human learning", "#e8f0fe"),
+                                     (H + 0.5, H + T + 0.5, "CAV training", "#fff4e0"),
+                                     (H + T + 0.5, last_day + 0.5, "test", "#e6f4ea")):
+        if end > start:
+            ax.axvspan(start, end, color=color, label=label, zorder=0)
+    for col, color in (("all", "black"), ("HDV", "tab:blue"), ("CAV", "tab:red")):
+        if col in per_day:
+            y = per_day[col].rolling(max(smooth_by, 1), min_periods=1).mean()
+            ax.plot(per_day.index, y, color=color, lw=1.2, label=f"{col} (agents by final kind)")
+    ax.set_xlabel("day")
+    ax.set_ylabel("mean travel time (min)")
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    p1 = out / "travel_times.png"
+    fig.savefig(p1, dpi=110)
+    plt.close(fig)
+    test = rec[rec["day"] > H + T]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    if len(test):
+        per_agent = test.groupby(["agent", "group"])["travel_time"].mean().reset_index()
+        bins = np.linspace(per_agent["travel_time"].min(), per_agent["travel_time"].max() + 1e-6, 40)
+        for g, color in (("HDV", "tab:blue"), ("CAV", "tab:red")):
+            vals = per_agent.loc[per_agent["group"] == g, "travel_time"]
+            if len(vals):
+                ax.hist(vals, bins=bins, alpha=0.55, color=color, label=f"{g} (n={len(vals)})")
+        ax.legend()
+    ax.set_xlabel("mean travel time over test days (min)")
+    ax.set_ylabel("agents")
+    fig.tight_layout()
+    p2 = out / "test_distributions.png"
+    fig.savefig(p2, dpi=110)
+    plt.close(fig)
+    return [p1, p2]
