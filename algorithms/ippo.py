@@ -26,7 +26,6 @@ import optax
 
 from algorithms.common import (
     MLP,
-    Day,
     PPOConfig,
     collect,
     day_metrics,
@@ -139,7 +138,6 @@ def make_train(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
             k_col, k_upd = jax.random.split(key)
             params = runner.params
             env_states, days = collect(env, policy_for(params), k_col, runner.env_states, n_days)
-            days: Day
             logits = masked(actor.apply(params["actor"], days.obs), mask)
             log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), days.action[..., None], -1)[..., 0]
             values = critic_apply(params["critic"], days.obs)  # [T, B, C]
