@@ -1,0 +1,171 @@
+"""IPPO (URB's `ippo_torchrl.py`): independent PPO, shared parameters + OD embedding.
+
+Actor: Tanh MLP -> masked categorical logits (sampled in training and, as URB tests, or argmax).
+Critic: ReLU MLP on the CAV's own observation (+ OD embedding). Per iteration: collect
+`agent_frames_per_batch` days in each of `num_envs` envs, GAE(gamma, lmbda) over the days (a done
+day does not bootstrap: URB's one-day episodes make advantage = reward - V(obs)), then
+`num_epochs` epochs over shuffled minibatches of whole days with the clipped PPO objective,
+entropy bonus `entropy_eps`, smooth-L1 critic loss (TorchRL default, coefficient `critic_coef`)
+and optional advantage normalisation; one Adam (grad-norm clip) on both.
+
+Advantage normalisation is over the whole iteration's batch, not per minibatch as TorchRL does:
+with a cooperative reward and a broadcast centralised value every CAV of a day has the same
+advantage, so a one-day minibatch (minibatch_size < 2C) would normalise it to zero.
+
+`make_train(config, env, centralised=True)` is MAPPO (see mappo.py): the critic sees the global
+state (every CAV's observation) and its single value is broadcast to all CAVs.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from algorithms.common import (
+    MLP,
+    PPOConfig,
+    collect,
+    day_metrics,
+    entropy,
+    flatten_days,
+    gae,
+    hidden_layers,
+    make_agent_net,
+    masked,
+    minibatch_days,
+    obs_scale,
+    reset_envs,
+    take_agents,
+)
+from urb_jax.env import EnvState, RoutingEnv
+
+
+class RunnerState(NamedTuple):
+    params: Any  # {"actor": ..., "critic": ...}
+    opt_state: Any
+    env_states: EnvState
+
+
+class Batch(NamedTuple):
+    obs: jnp.ndarray  # [M, C, D]
+    action: jnp.ndarray  # [M, C]
+    log_prob: jnp.ndarray  # [M, C] behaviour policy
+    advantage: jnp.ndarray  # [M, C]
+    target: jnp.ndarray  # [M, C] value target (GAE return)
+
+
+def ppo_loss(actor_logits: jnp.ndarray, values: jnp.ndarray, batch: Batch, clip_eps: float,
+             entropy_coef: float, critic_coef: float) -> tuple[jnp.ndarray, dict[str, jnp.ndarray]]:
+    """Clipped surrogate + critic smooth-L1 - entropy bonus, means over every CAV-day sample."""
+    logp = jax.nn.log_softmax(actor_logits, axis=-1)
+    logp_a = jnp.take_along_axis(logp, batch.action[..., None], axis=-1)[..., 0]
+    ratio = jnp.exp(logp_a - batch.log_prob)
+    adv = batch.advantage
+    surrogate = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - clip_eps, 1.0 + clip_eps) * adv)
+    policy_loss = -surrogate.mean()
+    value_loss = optax.huber_loss(values, batch.target, delta=1.0).mean()
+    ent = entropy(actor_logits).mean()
+    total = policy_loss + critic_coef * value_loss - entropy_coef * ent
+    return total, {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": ent}
+
+
+def make_networks(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
+    """(actor AgentNet, critic init, critic apply(params, obs[..., C, D]) -> values[..., C])."""
+    actor = make_agent_net(env, hidden_layers(config.mlp_depth, config.mlp_cells), env.n_actions, "tanh",
+                           shared=config.shared_parameters, embed_dim=config.od_embedding_dim,
+                           normalize=config.normalize_obs)
+    critic_hidden = hidden_layers(config.critic_depth, config.critic_cells)
+    if not centralised:
+        net = make_agent_net(env, critic_hidden, 1, "relu", shared=config.shared_parameters,
+                             embed_dim=config.od_embedding_dim, normalize=config.normalize_obs)
+        return actor, net.init, lambda p, obs: net.apply(p, obs)[..., 0]
+    scale = jnp.asarray(obs_scale(env)) if config.normalize_obs else 1.0
+    mlp = MLP(critic_hidden, 1, "relu")
+    n_cav = env.n_cavs
+
+    def critic_init(key: jax.Array) -> Any:
+        return mlp.init(key, jnp.zeros((env.n_cavs * env.obs_size,)))
+
+    def critic_apply(params: Any, obs: jnp.ndarray) -> jnp.ndarray:
+        state = env.global_state(obs / scale)  # [..., C * D]
+        value = mlp.apply(params, state)  # [..., 1]
+        return jnp.broadcast_to(value, (*value.shape[:-1], n_cav))
+
+    return actor, critic_init, critic_apply
+
+
+def make_policy(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
+    """params -> policy(key, obs[C, D]) -> actions[C]; sample=False is the argmax test policy."""
+    actor, _, _ = make_networks(config, env, centralised)
+    mask = jnp.asarray(env.action_mask)
+
+    def policy_for(params: Any, sample: bool = True):
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            logits = masked(actor.apply(params["actor"], obs, idx), take_agents(mask, idx))
+            if sample:
+                return jax.random.categorical(key, logits, axis=-1).astype(jnp.int32)
+            return jnp.argmax(logits, axis=-1).astype(jnp.int32)
+
+        return policy
+
+    return policy_for
+
+
+def make_train(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
+    actor, critic_init, critic_apply = make_networks(config, env, centralised)
+    policy_for = make_policy(config, env, centralised)
+    mask = jnp.asarray(env.action_mask)
+    n_envs, n_days = config.num_envs, config.agent_frames_per_batch
+    total = n_days * n_envs
+    mb_days = min(minibatch_days(config.minibatch_size, env.n_cavs), total)
+    n_minibatches = max(1, total // mb_days)
+    tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
+
+    def loss_fn(params: Any, batch: Batch):
+        logits = masked(actor.apply(params["actor"], batch.obs), mask)
+        values = critic_apply(params["critic"], batch.obs)
+        return ppo_loss(logits, values, batch, config.clip_epsilon, config.entropy_eps, config.critic_coef)
+
+    def train(key: jax.Array) -> dict[str, Any]:
+        k_actor, k_critic, k_env, k_loop = jax.random.split(key, 4)
+        params = {"actor": actor.init(k_actor), "critic": critic_init(k_critic)}
+        runner = RunnerState(params, tx.init(params), reset_envs(env, k_env, n_envs))
+
+        def iteration(runner: RunnerState, key: jax.Array):
+            k_col, k_upd = jax.random.split(key)
+            params = runner.params
+            env_states, days = collect(env, policy_for(params), k_col, runner.env_states, n_days)
+            logits = masked(actor.apply(params["actor"], days.obs), mask)
+            log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), days.action[..., None], -1)[..., 0]
+            values = critic_apply(params["critic"], days.obs)  # [T, B, C]
+            last_value = critic_apply(params["critic"], days.next_obs[-1])
+            adv, targets = gae(days.reward, values, days.done, last_value, config.gamma, config.lmbda)
+            if config.normalize_advantage:  # over the iteration's batch: see module docstring
+                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+            data = flatten_days(Batch(days.obs, days.action, log_prob, adv, targets))
+
+            def epoch(carry, k):
+                perm = jax.random.permutation(k, total)[: n_minibatches * mb_days]
+                shuffled = jax.tree_util.tree_map(
+                    lambda x: x[perm].reshape(n_minibatches, mb_days, *x.shape[1:]), data)
+
+                def sgd_step(carry, batch: Batch):
+                    params, opt_state = carry
+                    (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, batch)
+                    updates, opt_state = tx.update(grads, opt_state, params)
+                    return (optax.apply_updates(params, updates), opt_state), aux | {"loss": loss}
+
+                return jax.lax.scan(sgd_step, carry, shuffled)
+
+            (params, opt_state), aux = jax.lax.scan(
+                epoch, (params, runner.opt_state), jax.random.split(k_upd, config.num_epochs))
+            metrics = day_metrics(days) | jax.tree_util.tree_map(jnp.mean, aux)
+            return RunnerState(params, opt_state, env_states), metrics
+
+        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, config.n_iters))
+        return {"runner_state": runner, "metrics": metrics}
+
+    return train

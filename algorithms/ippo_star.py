@@ -1,0 +1,144 @@
+"""IPPO* (URB's adjusted `scripts/ippo.py`): one policy network per CAV, PPO-clip as a bandit.
+
+Each CAV has its own ReLU MLP (`widths`) -> masked logits, stacked on a leading [C] parameter axis
+with its own Adam state and grad-norm clip (the update is vmapped over CAVs). CAVs sample from
+softmax(logits) and store (observation, action, log-prob, day reward), one sample per CAV per day.
+URB updates on the first day with `day % update_every == 0` and at least `batch_size` samples,
+then clears the buffer: here one iteration collects exactly that many days
+(`update_every * ceil(batch_size / (update_every * num_envs))` per env), then runs `num_epochs`
+epochs, each on a random `batch_size` subset: ratio = exp(logp - logp_old), advantage = the
+reward standardised over the minibatch (`normalize_advantage`) or the raw reward, loss =
+-mean(min(ratio A, clip(ratio, 1 +- clip_eps) A)) - entropy_coef * entropy. No critic.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from algorithms.common import (
+    MLP,
+    IPPOStarConfig,
+    collect,
+    day_metrics,
+    entropy,
+    masked,
+    obs_scale,
+    reset_envs,
+    take_agents,
+)
+from urb_jax.env import EnvState, RoutingEnv
+
+
+class RunnerState(NamedTuple):
+    params: Any  # leaves [C, ...]
+    opt_state: Any
+    env_states: EnvState
+
+
+def bandit_ppo_loss(logits: jnp.ndarray, action: jnp.ndarray, old_log_prob: jnp.ndarray, reward: jnp.ndarray,
+                    clip_eps: float, entropy_coef: float, normalize: bool) -> jnp.ndarray:
+    """One CAV's minibatch: logits [M, K] (masked), action/old_log_prob/reward [M]."""
+    logp = jax.nn.log_softmax(logits, axis=-1)
+    logp_a = jnp.take_along_axis(logp, action[..., None], axis=-1)[..., 0]
+    ratio = jnp.exp(logp_a - old_log_prob)
+    adv = (reward - reward.mean()) / (reward.std() + 1e-8) if normalize else reward
+    surrogate = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - clip_eps, 1.0 + clip_eps) * adv)
+    return -surrogate.mean() - entropy_coef * entropy(logits).mean()
+
+
+def days_per_update(config: IPPOStarConfig) -> int:
+    per_env = math.ceil(config.batch_size / max(config.num_envs, 1))
+    return config.update_every * math.ceil(per_env / config.update_every)
+
+
+def make_network(config: IPPOStarConfig, env: RoutingEnv):
+    mlp = MLP(tuple(config.widths), env.n_actions, "relu")
+    scale = jnp.asarray(obs_scale(env) if config.normalize_obs else np.ones(env.obs_size, np.float32))
+
+    def init(key: jax.Array) -> Any:
+        return jax.vmap(lambda k: mlp.init(k, jnp.zeros((env.obs_size,))))(jax.random.split(key, env.n_cavs))
+
+    def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+        x = jnp.moveaxis(obs / scale, -2, 0)
+        return jnp.moveaxis(jax.vmap(mlp.apply)(take_agents(params, idx), x), 0, -2)
+
+    return init, apply, mlp, scale
+
+
+def make_policy(config: IPPOStarConfig, env: RoutingEnv):
+    """params -> policy(key, obs[C, D]) -> actions[C]; sample=False is URB's argmax test."""
+    _, apply, _, _ = make_network(config, env)
+    mask = jnp.asarray(env.action_mask)
+
+    def policy_for(params: Any, sample: bool = True):
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            logits = masked(apply(params, obs, idx), take_agents(mask, idx))
+            if sample:
+                return jax.random.categorical(key, logits, axis=-1).astype(jnp.int32)
+            return jnp.argmax(logits, axis=-1).astype(jnp.int32)
+
+        return policy
+
+    return policy_for
+
+
+def make_train(config: IPPOStarConfig, env: RoutingEnv):
+    init, apply, mlp, scale = make_network(config, env)
+    policy_for = make_policy(config, env)
+    mask = jnp.asarray(env.action_mask)
+    n_days = days_per_update(config)
+    n_iters = max(1, config.num_episodes // n_days)
+    n_samples = n_days * config.num_envs  # per CAV per update
+    batch = min(config.batch_size, n_samples)
+    tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
+
+    def agent_update(params: Any, opt_state: Any, obs: jnp.ndarray, action: jnp.ndarray,
+                     logp_old: jnp.ndarray, reward: jnp.ndarray, mask_c: jnp.ndarray, key: jax.Array):
+        """One CAV, its n_samples samples: num_epochs epochs on random batch_size subsets."""
+        def step(carry, k):
+            params, opt_state = carry
+            idx = jax.random.permutation(k, n_samples)[:batch]
+
+            def loss(p):
+                logits = masked(mlp.apply(p, obs[idx] / scale), mask_c)
+                return bandit_ppo_loss(logits, action[idx], logp_old[idx], reward[idx], config.clip_eps,
+                                       config.entropy_coef, config.normalize_advantage)
+
+            value, grads = jax.value_and_grad(loss)(params)
+            updates, opt_state = tx.update(grads, opt_state, params)
+            return (optax.apply_updates(params, updates), opt_state), value
+
+        (params, opt_state), losses = jax.lax.scan(step, (params, opt_state),
+                                                   jax.random.split(key, config.num_epochs))
+        return params, opt_state, losses.mean()
+
+    def train(key: jax.Array) -> dict[str, Any]:
+        k_init, k_env, k_loop = jax.random.split(key, 3)
+        params = init(k_init)
+        runner = RunnerState(params, jax.vmap(tx.init)(params), reset_envs(env, k_env, config.num_envs))
+
+        def iteration(runner: RunnerState, key: jax.Array):
+            k_col, k_upd = jax.random.split(key)
+            env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days)
+            logits = masked(apply(runner.params, days.obs), mask)
+            logp = jnp.take_along_axis(jax.nn.log_softmax(logits), days.action[..., None], -1)[..., 0]
+
+            def per_cav(x: jnp.ndarray) -> jnp.ndarray:  # [T, B, C, ...] -> [C, T*B, ...]
+                return jnp.moveaxis(x.reshape(n_samples, *x.shape[2:]), 1, 0)
+
+            params, opt_state, loss = jax.vmap(agent_update)(
+                runner.params, runner.opt_state, per_cav(days.obs), per_cav(days.action), per_cav(logp),
+                per_cav(days.reward), mask, jax.random.split(k_upd, env.n_cavs))
+            metrics = day_metrics(days) | {"loss": loss.mean()}
+            return RunnerState(params, opt_state, env_states), metrics
+
+        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, n_iters))
+        return {"runner_state": runner, "metrics": metrics}
+
+    return train

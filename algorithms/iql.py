@@ -1,0 +1,140 @@
+"""IQL (URB's `iql_torchrl.py`): independent DQN learners, shared parameters + OD embedding.
+
+Per iteration: collect `agent_frames_per_batch` days in each of `num_envs` envs with an
+epsilon-greedy policy (epsilon linear eps_init -> eps_end over exploration_fraction of the
+training days), append the days to a ring replay buffer, then `num_epochs` epochs of
+`max(1, frames // minibatch_size)` Adam steps each on TD(0) targets
+y = r + gamma * (1 - done) * max_a' Q_target(s', a') with the CAV's own reward; the target is
+mixed `target <- eps * target + (1 - eps) * online` once per epoch (URB key `eps`, `tau` unused).
+URB's episodes are one day (done every day), so y = r: a contextual bandit per day.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from algorithms.common import (
+    Buffer,
+    Day,
+    IQLConfig,
+    buffer_add,
+    buffer_init,
+    buffer_sample,
+    collect,
+    day_metrics,
+    eps_greedy,
+    flatten_days,
+    hidden_layers,
+    linear_schedule,
+    make_agent_net,
+    masked,
+    minibatch_days,
+    n_updates,
+    polyak,
+    reset_envs,
+    select_tree,
+    take_agents,
+)
+from urb_jax.env import EnvState, RoutingEnv
+
+
+class RunnerState(NamedTuple):
+    params: Any
+    target: Any
+    opt_state: Any
+    buffer: Buffer
+    env_states: EnvState
+    day: jnp.ndarray  # training days so far (per env)
+
+
+def td_loss(q_apply, params: Any, target: Any, batch: Day, mask: jnp.ndarray, gamma: float) -> jnp.ndarray:
+    """Mean squared TD(0) error over every CAV of every day in the batch."""
+    q = q_apply(params, batch.obs)  # [M, C, K]
+    q_a = jnp.take_along_axis(q, batch.action[..., None], axis=-1)[..., 0]
+    q_next = masked(q_apply(target, batch.next_obs), mask).max(-1)
+    y = batch.reward + gamma * (1.0 - batch.done.astype(jnp.float32)) * q_next
+    return jnp.mean((q_a - jax.lax.stop_gradient(y)) ** 2)
+
+
+def make_network(config: IQLConfig, env: RoutingEnv):
+    return make_agent_net(env, hidden_layers(config.mlp_depth, config.mlp_cells), env.n_actions, "relu",
+                          shared=config.shared_parameters, embed_dim=config.od_embedding_dim,
+                          normalize=config.normalize_obs)
+
+
+def make_policy(config: IQLConfig, env: RoutingEnv):
+    """(params, eps) -> policy(key, obs[C, D]) -> actions[C]; eps=0 is the greedy test policy."""
+    net = make_network(config, env)
+    mask = jnp.asarray(env.action_mask)
+
+    def policy_for(params: Any, eps: float | jnp.ndarray = 0.0):
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            return eps_greedy(key, net.apply(params, obs, idx), take_agents(mask, idx), eps)
+
+        return policy
+
+    return policy_for
+
+
+def make_train(config: IQLConfig, env: RoutingEnv):
+    net = make_network(config, env)
+    policy_for = make_policy(config, env)
+    mask = jnp.asarray(env.action_mask)
+    n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.agent_frames_per_batch
+    mb_days = minibatch_days(config.minibatch_size, n_cav)
+    capacity = max(config.memory_size // max(n_cav, 1), mb_days)  # memory_size frames, stored as days
+    steps_per_epoch = n_updates(1, n_days * n_envs, n_cav, config.minibatch_size)
+    total_days = n_days * config.n_iters
+    eps_at = linear_schedule(config.eps_init, config.eps_end, config.exploration_fraction * total_days)
+    tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
+
+    def loss_fn(params: Any, target: Any, batch: Day) -> jnp.ndarray:
+        return td_loss(net.apply, params, target, batch, mask, config.gamma)
+
+    def train(key: jax.Array) -> dict[str, Any]:
+        k_init, k_env, k_loop = jax.random.split(key, 3)
+        params = net.init(k_init)
+        env_states = reset_envs(env, k_env, n_envs)
+        c, d = n_cav, env.obs_size
+        example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
+                      jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
+        runner = RunnerState(params, params, tx.init(params), buffer_init(example, capacity), env_states,
+                             jnp.zeros((), jnp.int32))
+
+        def iteration(runner: RunnerState, key: jax.Array):
+            k_col, k_upd = jax.random.split(key)
+            eps = eps_at(runner.day)
+            env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days)
+            buffer = buffer_add(runner.buffer, flatten_days(days))
+
+            def epoch(carry, k):
+                params, target, opt_state = carry
+
+                def sgd_step(carry, k):
+                    params, opt_state = carry
+                    batch = buffer_sample(buffer, k, mb_days)
+                    loss, grads = jax.value_and_grad(loss_fn)(params, target, batch)
+                    updates, opt_state = tx.update(grads, opt_state, params)
+                    return (optax.apply_updates(params, updates), opt_state), loss
+
+                (params, opt_state), losses = jax.lax.scan(
+                    sgd_step, (params, opt_state), jax.random.split(k, steps_per_epoch))
+                return (params, polyak(target, params, config.target_eps), opt_state), losses.mean()
+
+            (params, target, opt_state), losses = jax.lax.scan(
+                epoch, (runner.params, runner.target, runner.opt_state),
+                jax.random.split(k_upd, config.num_epochs))
+            ready = buffer.size >= mb_days
+            params, target, opt_state = select_tree(
+                ready, (params, target, opt_state), (runner.params, runner.target, runner.opt_state))
+            metrics = day_metrics(days) | {"loss": losses.mean(), "eps": eps}
+            return RunnerState(params, target, opt_state, buffer, env_states, runner.day + n_days), metrics
+
+        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, config.n_iters))
+        return {"runner_state": runner, "metrics": metrics}
+
+    return train

@@ -1,0 +1,142 @@
+"""IQL* (URB's adjusted `scripts/iql.py`): one Q network per CAV, a one-step contextual bandit.
+
+Each CAV has its own ReLU MLP (`widths`), stacked on a leading [C] parameter axis with its own
+Adam state (the update is vmapped over CAVs, so no CAV's gradient touches another's network).
+Every day a CAV stores (observation at its turn, action, its day reward) in its FIFO buffer of
+`buffer_size`; every `update_every` days, once the buffer holds `batch_size` samples, it takes
+`num_epochs` minibatches of `batch_size` distinct samples and regresses Q(s, a) on the reward
+(MSE, no bootstrapping, no target network); then epsilon <- max(eps_min, epsilon * eps_decay).
+Acting is epsilon-greedy over valid routes. With `num_envs` B > 1, an update sees the B
+parallel environments' days (B samples per CAV per day) and epsilon decays per update, as URB.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from algorithms.common import (
+    MLP,
+    Buffer,
+    IQLStarConfig,
+    buffer_add,
+    buffer_init,
+    collect,
+    day_metrics,
+    eps_greedy,
+    flatten_days,
+    obs_scale,
+    reset_envs,
+    select_tree,
+    take_agents,
+)
+from urb_jax.env import EnvState, RoutingEnv
+
+
+class Sample(NamedTuple):
+    obs: jnp.ndarray  # [C, D]
+    action: jnp.ndarray  # [C]
+    reward: jnp.ndarray  # [C]
+
+
+class RunnerState(NamedTuple):
+    params: Any  # leaves [C, ...]
+    opt_state: Any  # leaves [C, ...]
+    buffer: Buffer  # entries [capacity] of Sample (every CAV adds one per env-day)
+    env_states: EnvState
+    eps: jnp.ndarray
+
+
+def bandit_loss(q: jnp.ndarray, action: jnp.ndarray, reward: jnp.ndarray) -> jnp.ndarray:
+    """MSE between Q(s, a) and the day reward (one CAV's minibatch: q [M, K])."""
+    q_a = jnp.take_along_axis(q, action[..., None], axis=-1)[..., 0]
+    return jnp.mean((q_a - reward) ** 2)
+
+
+def make_network(config: IQLStarConfig, env: RoutingEnv):
+    """(init(key) -> stacked params, apply(params, obs[..., C, D]) -> q[..., C, K])."""
+    mlp = MLP(tuple(config.widths), env.n_actions, "relu")
+    scale = jnp.asarray(obs_scale(env) if config.normalize_obs else np.ones(env.obs_size, np.float32))
+
+    def init(key: jax.Array) -> Any:
+        return jax.vmap(lambda k: mlp.init(k, jnp.zeros((env.obs_size,))))(jax.random.split(key, env.n_cavs))
+
+    def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+        x = jnp.moveaxis(obs / scale, -2, 0)
+        return jnp.moveaxis(jax.vmap(mlp.apply)(take_agents(params, idx), x), 0, -2)
+
+    return init, apply, mlp, scale
+
+
+def make_policy(config: IQLStarConfig, env: RoutingEnv):
+    """(params, eps) -> policy(key, obs[C, D]) -> actions[C]; eps=0 is URB's greedy test."""
+    _, apply, _, _ = make_network(config, env)
+    mask = jnp.asarray(env.action_mask)
+
+    def policy_for(params: Any, eps: float | jnp.ndarray = 0.0):
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            return eps_greedy(key, apply(params, obs, idx), take_agents(mask, idx), eps)
+
+        return policy
+
+    return policy_for
+
+
+def make_train(config: IQLStarConfig, env: RoutingEnv):
+    init, _, mlp, scale = make_network(config, env)
+    policy_for = make_policy(config, env)
+    n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.update_every
+    n_iters = max(1, config.num_episodes // n_days)
+    capacity = max(config.buffer_size, config.batch_size)
+    tx = optax.adam(config.lr)
+
+    def agent_update(params: Any, opt_state: Any, obs: jnp.ndarray, action: jnp.ndarray, reward: jnp.ndarray,
+                     key: jax.Array, size: jnp.ndarray):
+        """One CAV: num_epochs minibatches of batch_size distinct samples from its buffer column."""
+        def step(carry, k):
+            params, opt_state = carry
+            scores = jnp.where(jnp.arange(capacity) < size, jax.random.uniform(k, (capacity,)), -1.0)
+            _, idx = jax.lax.top_k(scores, config.batch_size)
+
+            def loss(p):
+                return bandit_loss(mlp.apply(p, obs[idx] / scale), action[idx], reward[idx])
+
+            value, grads = jax.value_and_grad(loss)(params)
+            updates, opt_state = tx.update(grads, opt_state, params)
+            return (optax.apply_updates(params, updates), opt_state), value
+
+        (params, opt_state), losses = jax.lax.scan(step, (params, opt_state),
+                                                   jax.random.split(key, config.num_epochs))
+        return params, opt_state, losses.mean()
+
+    def train(key: jax.Array) -> dict[str, Any]:
+        k_init, k_env, k_loop = jax.random.split(key, 3)
+        params = init(k_init)
+        c, d = n_cav, env.obs_size
+        example = Sample(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)))
+        runner = RunnerState(params, jax.vmap(tx.init)(params), buffer_init(example, capacity),
+                             reset_envs(env, k_env, n_envs), jnp.asarray(config.eps_init, jnp.float32))
+
+        def iteration(runner: RunnerState, key: jax.Array):
+            k_col, k_upd = jax.random.split(key)
+            env_states, days = collect(env, policy_for(runner.params, runner.eps), k_col, runner.env_states,
+                                       n_days)
+            buffer = buffer_add(runner.buffer, flatten_days(Sample(days.obs, days.action, days.reward)))
+            data = buffer.data  # [cap, C, ...] -> per-CAV columns
+            params, opt_state, loss = jax.vmap(agent_update, in_axes=(0, 0, 1, 1, 1, 0, None))(
+                runner.params, runner.opt_state, data.obs, data.action, data.reward,
+                jax.random.split(k_upd, n_cav), buffer.size)
+            ready = buffer.size >= config.batch_size
+            params, opt_state = select_tree(ready, (params, opt_state), (runner.params, runner.opt_state))
+            eps = jnp.where(ready, jnp.maximum(config.eps_min, runner.eps * config.eps_decay), runner.eps)
+            metrics = day_metrics(days) | {"loss": loss.mean(), "eps": runner.eps}
+            return RunnerState(params, opt_state, buffer, env_states, eps), metrics
+
+        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, n_iters))
+        return {"runner_state": runner, "metrics": metrics}
+
+    return train

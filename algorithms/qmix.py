@@ -1,0 +1,171 @@
+"""QMIX (URB's `qmix_torchrl.py`): per-CAV Q networks (Tanh, shared parameters + OD embedding)
+mixed by a monotonic hypernetwork into Q_tot, trained on the team reward (mean CAV reward).
+
+Mixer (Rashid et al. 2018, TorchRL's QMixer): from the global state s (every CAV's scaled
+observation, flattened), W1 = |Hyper_w1(s)| [C, E], b1 = Hyper_b1(s), h = elu(q W1 + b1),
+w2 = |Hyper_w2(s)| [E], V(s) = two-layer hypernet; Q_tot = h . w2 + V(s). Non-negative weights
+make dQ_tot/dq_i >= 0, so per-CAV argmax is the joint argmax. `mixer="vdn"` is VDN (sum).
+
+Replay of whole days (memory_size frames = memory_size // C days); TD(0) target
+y = r_team + gamma * (1 - done) * Q_tot_target(max_a Q_target(s'), s'); soft target update
+target <- (1 - tau) target + tau online after every gradient step; epsilon-greedy as IQL.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+
+from algorithms.common import (
+    Buffer,
+    Day,
+    MixerConfig,
+    buffer_add,
+    buffer_init,
+    buffer_sample,
+    collect,
+    day_metrics,
+    eps_greedy,
+    flatten_days,
+    hidden_layers,
+    linear_schedule,
+    make_agent_net,
+    masked,
+    minibatch_days,
+    n_updates,
+    obs_scale,
+    polyak,
+    reset_envs,
+    select_tree,
+    take_agents,
+)
+from urb_jax.env import EnvState, RoutingEnv
+
+
+class QMixer(nn.Module):
+    n_agents: int
+    embed_dim: int
+
+    @nn.compact
+    def __call__(self, q: jnp.ndarray, state: jnp.ndarray) -> jnp.ndarray:
+        """q [..., C] chosen-action values, state [..., S] -> Q_tot [...]."""
+        e = self.embed_dim
+        w1 = jnp.abs(nn.Dense(self.n_agents * e, name="hyper_w1")(state)).reshape(*q.shape, e)
+        b1 = nn.Dense(e, name="hyper_b1")(state)
+        hidden = nn.elu(jnp.einsum("...c,...ce->...e", q, w1) + b1)
+        w2 = jnp.abs(nn.Dense(e, name="hyper_w2")(state))
+        v = nn.Dense(1, name="hyper_v2")(nn.relu(nn.Dense(e, name="hyper_v1")(state)))[..., 0]
+        return (hidden * w2).sum(-1) + v
+
+
+class VDNMixer(nn.Module):
+    @nn.compact
+    def __call__(self, q: jnp.ndarray, state: jnp.ndarray) -> jnp.ndarray:
+        return q.sum(-1)
+
+
+class RunnerState(NamedTuple):
+    params: Any  # {"agent": ..., "mixer": ...}
+    target: Any
+    opt_state: Any
+    buffer: Buffer
+    env_states: EnvState
+    day: jnp.ndarray
+
+
+def make_mixer(config: MixerConfig, env: RoutingEnv, mixer: str) -> nn.Module:
+    return QMixer(env.n_cavs, config.mixing_embed_dim) if mixer == "qmix" else VDNMixer()
+
+
+def mixed_td_loss(q_apply, mix_apply, params: Any, target: Any, batch: Day, mask: jnp.ndarray,
+                  gamma: float, state_fn) -> jnp.ndarray:
+    """Mean squared TD(0) error of Q_tot on the team reward (mean over CAVs) per day."""
+    q = q_apply(params["agent"], batch.obs)  # [M, C, K]
+    q_a = jnp.take_along_axis(q, batch.action[..., None], axis=-1)[..., 0]
+    q_tot = mix_apply(params["mixer"], q_a, state_fn(batch.obs))
+    q_next = masked(q_apply(target["agent"], batch.next_obs), mask).max(-1)
+    q_tot_next = mix_apply(target["mixer"], q_next, state_fn(batch.next_obs))
+    team_reward = batch.reward.mean(-1)
+    done = batch.done.all(-1).astype(jnp.float32)
+    y = team_reward + gamma * (1.0 - done) * q_tot_next
+    return jnp.mean((q_tot - jax.lax.stop_gradient(y)) ** 2)
+
+
+def make_network(config: MixerConfig, env: RoutingEnv):
+    return make_agent_net(env, hidden_layers(config.mlp_depth, config.mlp_cells), env.n_actions, "tanh",
+                          shared=config.shared_parameters, embed_dim=config.od_embedding_dim,
+                          normalize=config.normalize_obs)
+
+
+def make_policy(config: MixerConfig, env: RoutingEnv):
+    """(params, eps) -> policy(key, obs[C, D]) -> actions[C] (eps=0: greedy test policy)."""
+    net = make_network(config, env)
+    mask = jnp.asarray(env.action_mask)
+
+    def policy_for(params: Any, eps: float | jnp.ndarray = 0.0):
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            return eps_greedy(key, net.apply(params["agent"], obs, idx), take_agents(mask, idx), eps)
+
+        return policy
+
+    return policy_for
+
+
+def make_train(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix"):
+    net = make_network(config, env)
+    mix = make_mixer(config, env, mixer)
+    policy_for = make_policy(config, env)
+    mask = jnp.asarray(env.action_mask)
+    scale = jnp.asarray(obs_scale(env)) if config.normalize_obs else 1.0
+    n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.agent_frames_per_batch
+    mb_days = minibatch_days(config.minibatch_size, n_cav)
+    capacity = max(config.memory_size // max(n_cav, 1), mb_days)
+    n_steps = n_updates(config.num_epochs, n_days * n_envs, n_cav, config.minibatch_size)
+    eps_at = linear_schedule(config.eps_init, config.eps_end,
+                             config.exploration_fraction * n_days * config.n_iters)
+    tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
+
+    def state_fn(obs: jnp.ndarray) -> jnp.ndarray:
+        return env.global_state(obs / scale)
+
+    def loss_fn(params: Any, target: Any, batch: Day) -> jnp.ndarray:
+        return mixed_td_loss(net.apply, mix.apply, params, target, batch, mask, config.gamma, state_fn)
+
+    def train(key: jax.Array) -> dict[str, Any]:
+        k_agent, k_mix, k_env, k_loop = jax.random.split(key, 4)
+        c, d = n_cav, env.obs_size
+        params = {"agent": net.init(k_agent),
+                  "mixer": mix.init(k_mix, jnp.zeros((c,)), jnp.zeros((c * d,)))}
+        example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
+                      jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
+        runner = RunnerState(params, params, tx.init(params), buffer_init(example, capacity),
+                             reset_envs(env, k_env, n_envs), jnp.zeros((), jnp.int32))
+
+        def iteration(runner: RunnerState, key: jax.Array):
+            k_col, k_upd = jax.random.split(key)
+            eps = eps_at(runner.day)
+            env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days)
+            buffer = buffer_add(runner.buffer, flatten_days(days))
+
+            def sgd_step(carry, k):
+                params, target, opt_state = carry
+                batch = buffer_sample(buffer, k, mb_days)
+                loss, grads = jax.value_and_grad(loss_fn)(params, target, batch)
+                updates, opt_state = tx.update(grads, opt_state, params)
+                params = optax.apply_updates(params, updates)
+                return (params, polyak(target, params, 1.0 - config.tau), opt_state), loss
+
+            old = (runner.params, runner.target, runner.opt_state)
+            new, losses = jax.lax.scan(sgd_step, old, jax.random.split(k_upd, n_steps))
+            params, target, opt_state = select_tree(buffer.size >= mb_days, new, old)
+            metrics = day_metrics(days) | {"loss": losses.mean(), "eps": eps}
+            return RunnerState(params, target, opt_state, buffer, env_states, runner.day + n_days), metrics
+
+        runner, metrics = jax.lax.scan(iteration, runner, jax.random.split(k_loop, config.n_iters))
+        return {"runner_state": runner, "metrics": metrics}
+
+    return train

@@ -1,0 +1,112 @@
+"""Training days per second of every algorithm (URB config1 hyperparameters), B = 1 and B = 64
+environments, 40% CAVs, on the BPR stand-in travel-time model (or pass --surrogate later).
+
+A "training day" is one simulated day of one environment including the updates that go with it
+(collection + learning, whole jitted train function; compile time reported separately).
+
+    python benchmarks/train_speed.py                       # saint_arnoult and ingolstadt_custom
+    python benchmarks/train_speed.py --networks saint_arnoult --algs iql ippo --envs 64
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from standin import make_env
+
+from algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
+from algorithms.common import load_algo_config
+from algorithms.ippo_star import days_per_update
+from urb_jax.scenario import load_scenario
+
+MODULES = {"iql": iql, "ippo": ippo, "mappo": mappo, "qmix": qmix, "vdn": vdn, "iql_star": iql_star,
+           "ippo_star": ippo_star}
+BEHAVIOUR = {"mappo": "cooperative", "qmix": "cooperative", "vdn": "cooperative"}
+NETWORKS_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "networks"  # else $URB_JAX_NETWORKS
+
+
+def sized_config(alg: str, config, n_envs: int, min_days: int):
+    """The config with num_envs = B and just enough iterations for >= min_days training days."""
+    if alg == "iql_star":
+        per_iter = config.update_every * n_envs
+        iters = max(1, math.ceil(min_days / per_iter))
+        config = dataclasses.replace(config, num_envs=n_envs, num_episodes=iters * config.update_every)
+        return config, iters * per_iter
+    if alg == "ippo_star":
+        config = dataclasses.replace(config, num_envs=n_envs)
+        per_iter = days_per_update(config) * n_envs
+        iters = max(1, math.ceil(min_days / per_iter))
+        return dataclasses.replace(config, num_episodes=iters * days_per_update(config)), iters * per_iter
+    per_iter = config.agent_frames_per_batch * n_envs
+    iters = max(1, math.ceil(min_days / per_iter))
+    return dataclasses.replace(config, num_envs=n_envs, n_iters=iters), iters * per_iter
+
+
+def with_network(alg: str, config, net: str | None):
+    """Override every network size with DEPTHxCELLS (e.g. 2x64) for a reduced-size comparison."""
+    if net is None:
+        return config
+    depth, cells = (int(v) for v in net.lower().split("x"))
+    if alg in ("iql_star", "ippo_star"):
+        return dataclasses.replace(config, widths=(cells,) * depth)
+    sizes = {"mlp_depth": depth, "mlp_cells": cells}
+    if alg in ("ippo", "mappo"):
+        sizes |= {"critic_depth": depth, "critic_cells": cells}
+    if alg == "qmix":
+        sizes |= {"mixing_embed_dim": cells}
+    return dataclasses.replace(config, **sizes)
+
+
+def measure(alg: str, env, n_envs: int, config_name: str, min_days: int, net: str | None = None
+            ) -> dict[str, float]:
+    config = with_network(alg, load_algo_config(alg, config_name), net)
+    config, days = sized_config(alg, config, n_envs, min_days)
+    train = MODULES[alg].make_train(config, env)
+    key = jax.random.PRNGKey(0)
+    t0 = time.perf_counter()
+    compiled = jax.jit(train).lower(key).compile()
+    t1 = time.perf_counter()
+    jax.block_until_ready(compiled(key))
+    t2 = time.perf_counter()
+    return {"compile_s": t1 - t0, "days": days, "run_s": t2 - t1, "days_per_s": days / (t2 - t1)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--networks", nargs="+", default=["saint_arnoult", "ingolstadt_custom"])
+    parser.add_argument("--algs", nargs="+", default=list(MODULES))
+    parser.add_argument("--envs", nargs="+", type=int, default=[1, 64])
+    parser.add_argument("--config", default="config1")
+    parser.add_argument("--min-days", type=int, default=200, help="training days per measurement (at least)")
+    parser.add_argument("--net", default=None, help="override network sizes, DEPTHxCELLS (e.g. 2x64)")
+    parser.add_argument("--skip", nargs="*", default=[], help="NETWORK:ALG:B combinations to leave out")
+    parser.add_argument("--networks-dir", default=str(NETWORKS_DIR) if NETWORKS_DIR.is_dir() else None)
+    args = parser.parse_args()
+    print(f"jax {jax.__version__} on {jax.devices()[0].platform}; URB {args.config}"
+          f"{'' if args.net is None else ' with networks ' + args.net}; BPR stand-in; 40% CAVs")
+    print(f"{'network':18s} {'alg':10s} {'B':>3s} {'CAVs':>5s} {'depth':>5s} {'compile s':>9s} "
+          f"{'days':>6s} {'run s':>7s} {'days/s':>8s}")
+    for net in args.networks:
+        scn = load_scenario(net, networks_dir=None if net == "urb_grid" else args.networks_dir)
+        envs = {b: make_env(scn, behaviour=b) for b in ("selfish", "cooperative")}
+        for alg in args.algs:
+            env = envs[BEHAVIOUR.get(alg, "selfish")]
+            for n_envs in args.envs:
+                if f"{net}:{alg}:{n_envs}" in args.skip:
+                    print(f"{net:18s} {alg:10s} {n_envs:3d}  skipped", flush=True)
+                    continue
+                r = measure(alg, env, n_envs, args.config, args.min_days, args.net)
+                print(f"{net:18s} {alg:10s} {n_envs:3d} {env.n_cavs:5d} {env.depth:5d} {r['compile_s']:9.1f} "
+                      f"{r['days']:6d} {r['run_s']:7.2f} {r['days_per_s']:8.1f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

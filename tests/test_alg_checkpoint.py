@@ -1,0 +1,60 @@
+"""Orbax checkpoint round-trip of policy + optimiser state, and the shipped URB algo configs."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import optax
+import pytest
+
+from algorithms import iql
+from algorithms.common import CONFIG_CLASSES, IQLConfig, load_algo_config, restore_checkpoint, save_checkpoint
+from urb_jax.errors import ConfigError
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from standin import make_env
+
+
+def test_checkpoint_round_trip(grid_scenario, tmp_path):
+    env = make_env(grid_scenario)
+    config = IQLConfig(mlp_depth=1, mlp_cells=16)
+    params = iql.make_network(config, env).init(jax.random.PRNGKey(3))
+    tx = optax.adam(1e-3)
+    opt_state = tx.init(params)
+    grads = jax.tree_util.tree_map(np.ones_like, params)
+    _, opt_state = tx.update(grads, opt_state, params)  # non-trivial moments
+    state = {"params": params, "opt_state": opt_state, "day": np.int32(40)}
+    path = save_checkpoint(tmp_path / "ckpt", state)
+    assert path.is_absolute() and path.is_dir()
+    restored = restore_checkpoint(path, jax.tree_util.tree_map(np.zeros_like, state))
+    for a, b in zip(jax.tree_util.tree_leaves(state), jax.tree_util.tree_leaves(restored), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    policy = iql.make_policy(config, env)
+    obs = env.reset(jax.random.PRNGKey(0))[0]
+    np.testing.assert_array_equal(policy(params)(jax.random.PRNGKey(0), obs),
+                                  policy(restored["params"])(jax.random.PRNGKey(0), obs))
+
+
+def test_shipped_configs_load_with_urb_values():
+    counts = {"iql": 5, "ippo": 5, "mappo": 5, "qmix": 5, "vdn": 5, "iql_star": 5, "ippo_star": 6}
+    for alg, n in counts.items():
+        for i in range(1, n + 1):
+            assert isinstance(load_algo_config(alg, f"config{i}"), CONFIG_CLASSES[alg])
+    qmix3 = load_algo_config("qmix", "config3")
+    days = qmix3.agent_frames_per_batch * qmix3.n_iters
+    assert (days, qmix3.mixing_embed_dim, qmix3.tau) == (4000, 256, 0.003)
+    assert load_algo_config("mappo", "config5").lmbda == 0.75
+    assert load_algo_config("ippo_star", "config6").num_episodes == 20000
+    assert load_algo_config("iql_star", "config4").widths == (96, 64, 32)
+
+
+def test_unknown_config_key_names_file_and_key(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({**dataclasses.asdict(IQLConfig()), "learning_rate": 1.0}))
+    with pytest.raises(ConfigError, match=r"bad\.json.*learning_rate"):
+        load_algo_config("iql", str(bad))

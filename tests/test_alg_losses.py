@@ -1,0 +1,165 @@
+"""Each algorithm's loss on a tiny batch against hand-computed values, plus the shared pieces
+(GAE, ring buffer, masking, schedules)."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from algorithms.common import (
+    Day,
+    buffer_add,
+    buffer_init,
+    buffer_sample,
+    eps_greedy,
+    gae,
+    linear_schedule,
+    polyak,
+)
+from algorithms.ippo import Batch, ppo_loss
+from algorithms.ippo_star import bandit_ppo_loss
+from algorithms.iql import td_loss
+from algorithms.iql_star import bandit_loss
+from algorithms.qmix import QMixer, VDNMixer, mixed_td_loss
+
+MASK = jnp.array([[True, True, False], [True, True, True]])  # CAV0 has 2 distinct routes
+
+
+def day_batch(reward, done) -> Day:
+    """One day, two CAVs; Q tables come from the fake q_apply below, observations are unused."""
+    z = jnp.zeros((1, 2, 4))
+    return Day(z, jnp.array([[1, 2]]), jnp.array([reward], jnp.float32), jnp.array([done]), z + 1.0,
+               jnp.zeros((1,)), jnp.zeros((1,)))
+
+
+Q_ONLINE = jnp.array([[[1.0, 2.0, 3.0], [0.5, 0.0, -1.0]]])
+Q_TARGET = jnp.array([[[4.0, 1.0, 9.0], [2.0, 3.0, 1.0]]])  # 9.0 is a masked route
+
+
+def fake_q(params, obs):
+    return params
+
+
+def test_td_target_bootstraps_masked_max_unless_done():
+    batch = day_batch([1.0, -1.0], [False, True])
+    loss = td_loss(fake_q, Q_ONLINE, Q_TARGET, batch, MASK, gamma=0.9)
+    y = np.array([1.0 + 0.9 * 4.0, -1.0])  # CAV0: max over valid routes is 4 (not 9); CAV1 done
+    q_a = np.array([2.0, -1.0])
+    assert float(loss) == pytest.approx(np.mean((q_a - y) ** 2))
+
+
+def test_vdn_sums_agent_values_on_team_reward():
+    batch = day_batch([-2.0, -4.0], [False, False])
+    params = {"agent": Q_ONLINE, "mixer": {}}
+    target = {"agent": Q_TARGET, "mixer": {}}
+    vdn = VDNMixer()
+    loss = mixed_td_loss(fake_q, vdn.apply, params, target, batch, MASK, 0.5, lambda o: o.reshape(1, -1))
+    q_tot = 2.0 + (-1.0)
+    y = -3.0 + 0.5 * (4.0 + 3.0)  # team reward = mean, target: sum of masked maxima
+    assert float(loss) == pytest.approx((q_tot - y) ** 2)
+
+
+def qmix_numpy(params, q, s):
+    """Independent numpy forward pass of the QMIX mixer from its parameters."""
+    p = jax.tree_util.tree_map(np.asarray, params["params"])
+
+    def dense(name, x):
+        return x @ p[name]["kernel"] + p[name]["bias"]
+
+    c = q.shape[-1]
+    w1 = np.abs(dense("hyper_w1", s)).reshape(c, -1)
+    h = q @ w1 + dense("hyper_b1", s)
+    h = np.where(h > 0, h, np.expm1(h))
+    w2 = np.abs(dense("hyper_w2", s))
+    v = dense("hyper_v2", np.maximum(dense("hyper_v1", s), 0.0))[0]
+    return float(h @ w2 + v)
+
+
+def test_qmix_mixer_matches_reference_and_is_monotonic():
+    mixer = QMixer(n_agents=3, embed_dim=5)
+    key = jax.random.PRNGKey(0)
+    params = mixer.init(key, jnp.zeros(3), jnp.zeros(7))
+    for i in range(5):
+        kq, ks = jax.random.split(jax.random.PRNGKey(i + 1))
+        q = jax.random.normal(kq, (3,)) * 3.0
+        s = jax.random.normal(ks, (7,))
+        expected = qmix_numpy(params, np.asarray(q), np.asarray(s))
+        assert float(mixer.apply(params, q, s)) == pytest.approx(expected, rel=1e-5, abs=1e-5)
+        grad = jax.grad(lambda qq, s=s: mixer.apply(params, qq, s))(q)
+        assert bool((grad >= 0).all())
+    raw = params["params"]["hyper_w1"]["kernel"]
+    assert bool((raw < 0).any())  # monotonicity comes from the abs, not from lucky weights
+
+
+def test_ppo_clipping_hand_computed():
+    logits = jnp.zeros((1, 2, 2))  # pi(a) = 0.5 for both CAVs
+    old = jnp.log(jnp.array([[1.0 / 3.0, 1.0 / 3.0]]))  # ratio = 1.5 for both
+    batch = Batch(jnp.zeros((1, 2, 1)), jnp.array([[0, 1]]), old, jnp.array([[2.0, -2.0]]),
+                  jnp.array([[1.0, 3.0]]))
+    values = jnp.array([[0.5, 0.0]])
+    total, aux = ppo_loss(logits, values, batch, clip_eps=0.2, entropy_coef=0.1, critic_coef=1.0)
+    # A=+2: min(1.5*2, 1.2*2) = 2.4 (clipped); A=-2: min(-3, -2.4) = -3 (unclipped)
+    policy = -(2.4 - 3.0) / 2
+    value = (0.5 * 0.5**2 + (3.0 - 0.5)) / 2  # smooth L1: quadratic below 1, linear above
+    ent = math.log(2.0)
+    assert float(aux["policy_loss"]) == pytest.approx(policy)
+    assert float(aux["value_loss"]) == pytest.approx(value)
+    assert float(total) == pytest.approx(policy + value - 0.1 * ent, rel=1e-6)
+    # the clipped sample passes no gradient to the actor
+    grad = jax.grad(lambda lg: ppo_loss(lg, values, batch, 0.2, 0.0, 1.0)[1]["policy_loss"])(logits)
+    np.testing.assert_allclose(grad[0, 0], 0.0, atol=1e-7)
+    assert float(jnp.abs(grad[0, 1]).sum()) > 0
+
+
+def test_ippo_star_standardises_rewards_and_iql_star_regresses_reward():
+    logits = jnp.zeros((2, 2))
+    old = jnp.log(jnp.array([0.5, 0.5]))  # ratio 1
+    loss = bandit_ppo_loss(logits, jnp.array([0, 1]), old, jnp.array([-1.0, -3.0]), 0.2, 0.0, True)
+    assert float(loss) == pytest.approx(0.0, abs=1e-6)  # standardised advantages +1, -1 cancel
+    loss_raw = bandit_ppo_loss(logits, jnp.array([0, 1]), old, jnp.array([-1.0, -3.0]), 0.2, 0.0, False)
+    assert float(loss_raw) == pytest.approx(2.0)
+    q = jnp.array([[1.0, 2.0], [0.0, -1.0]])
+    assert float(bandit_loss(q, jnp.array([1, 0]), jnp.array([0.0, 1.0]))) == pytest.approx((4.0 + 1.0) / 2)
+
+
+def test_gae_hand_computed():
+    rewards = jnp.array([[1.0], [2.0]])
+    values = jnp.array([[0.5], [1.0]])
+    adv, ret = gae(rewards, values, jnp.array([[False], [False]]), jnp.array([3.0]), gamma=0.9, lmbda=0.8)
+    d1 = 2.0 + 0.9 * 3.0 - 1.0
+    d0 = 1.0 + 0.9 * 1.0 - 0.5
+    np.testing.assert_allclose(adv[:, 0], [d0 + 0.9 * 0.8 * d1, d1], rtol=1e-6)
+    np.testing.assert_allclose(ret, adv + values)
+    adv_done, _ = gae(rewards, values, jnp.array([[True], [True]]), jnp.array([3.0]), 0.9, 0.8)
+    np.testing.assert_allclose(adv_done[:, 0], [0.5, 1.0])  # one-day episodes: reward - value
+
+
+def test_ring_buffer_fifo_and_sampling():
+    buf = buffer_init({"x": jnp.zeros(2)}, capacity=4)
+    buf = buffer_add(buf, {"x": jnp.arange(6.0).reshape(3, 2)})
+    assert int(buf.size) == 3
+    buf = buffer_add(buf, {"x": jnp.arange(6.0, 12.0).reshape(3, 2)})
+    assert int(buf.size) == 4 and int(buf.pos) == 2
+    np.testing.assert_array_equal(buf.data["x"][:, 0], [8.0, 10.0, 4.0, 6.0])  # oldest two overwritten
+    big = buffer_add(buf, {"x": jnp.arange(20.0).reshape(10, 2)})  # more than capacity: newest 4 stay
+    assert sorted(np.asarray(big.data["x"][:, 0]).tolist()) == [12.0, 14.0, 16.0, 18.0]
+    small = buffer_add(buffer_init({"x": jnp.zeros(())}, 10), {"x": jnp.arange(1.0, 4.0)})
+    for i in range(10):
+        got = np.asarray(buffer_sample(small, jax.random.PRNGKey(i), 3)["x"])
+        assert sorted(got.tolist()) == [1.0, 2.0, 3.0]  # distinct, only filled slots
+
+
+def test_eps_greedy_masks_and_schedule():
+    q = jnp.array([[0.0, 1.0, 5.0]] * 2000)
+    mask = jnp.array([[True, True, False]] * 2000)
+    greedy = eps_greedy(jax.random.PRNGKey(0), q, mask, 0.0)
+    np.testing.assert_array_equal(greedy, 1)  # the masked 5.0 is never taken
+    explore = np.asarray(eps_greedy(jax.random.PRNGKey(0), q, mask, 1.0))
+    assert set(np.unique(explore)) == {0, 1} and 0.4 < explore.mean() < 0.6
+    sched = linear_schedule(1.0, 0.1, 100)
+    np.testing.assert_allclose([sched(0.0), sched(50.0), sched(500.0)], [1.0, 0.55, 0.1], rtol=1e-6)
+    np.testing.assert_allclose(polyak(jnp.array(1.0), jnp.array(3.0), 0.75), 1.5)
