@@ -39,7 +39,9 @@ def run(args: argparse.Namespace) -> int:
         human_phase_from=args.human_phase_from,
     )
     m = out["metrics"]
-    print(f"results: {out['folder']}  ({out['wall_time_s']:.1f} s, {out['days']} SUMO days)")
+    replayed = out.get("replayed_days", 0)
+    print(f"results: {out['folder']}  ({out['wall_time_s']:.1f} s, {out['days'] - replayed} SUMO days"
+          + (f" + {replayed} replayed)" if replayed else ")"))
     for key in ("t_pre", "t_CAV", "t_HDV_test", "winrate", "cost_of_learning", "delta_V", "delta_L"):
         print(f"  {key:18s} {m[key]:.4f}" if m[key] == m[key] else f"  {key:18s} N/A")
     return 0
@@ -116,4 +118,5 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     config.update(status="done", wall_time_s=round(wall, 2))
     write_json(folder / "exp_config.json", config)
     return {"folder": folder, "metrics": metrics, "wall_time_s": wall,
-            "days": task.human_learning_episodes + task.training_eps + task.test_eps}
+            "days": task.human_learning_episodes + task.training_eps + task.test_eps,
+            "replayed_days": task.human_learning_episodes if human_phase_from else 0}
