@@ -224,6 +224,31 @@ def make_agent_net(
     return AgentNet(init, apply)
 
 
+class PerCavMLP(NamedTuple):
+    """One plain MLP per CAV (URB's IQL*/IPPO*): leaves carry a leading [C] axis. `mlp` and
+    `scale` let a per-CAV update apply one CAV's network directly."""
+
+    init: Callable[[jax.Array], Any]
+    apply: Callable[..., jnp.ndarray]
+    mlp: MLP
+    scale: jnp.ndarray
+
+
+def make_per_cav_mlp(env: RoutingEnv, widths: Sequence[int], normalize: bool) -> PerCavMLP:
+    """init(key) -> stacked params; apply(params, obs[..., C, D], idx=None) -> [..., C, K]."""
+    mlp = MLP(tuple(widths), env.n_actions, "relu")
+    scale = jnp.asarray(obs_scale(env) if normalize else np.ones(env.obs_size, np.float32))
+
+    def init(key: jax.Array) -> Any:
+        return jax.vmap(lambda k: mlp.init(k, jnp.zeros((env.obs_size,))))(jax.random.split(key, env.n_cavs))
+
+    def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+        x = jnp.moveaxis(obs / scale, -2, 0)
+        return jnp.moveaxis(jax.vmap(mlp.apply)(take_agents(params, idx), x), 0, -2)
+
+    return PerCavMLP(init, apply, mlp, scale)
+
+
 def take_agents(tree: Any, idx: jnp.ndarray | None) -> Any:
     """Rows `idx` of the leading (CAV) axis of every leaf; everything when idx is None."""
     return tree if idx is None else jax.tree_util.tree_map(lambda x: x[idx], tree)

@@ -19,11 +19,9 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 
 from algorithms.common import (
-    MLP,
     Day,
     IPPOStarConfig,
     Learner,
@@ -31,8 +29,8 @@ from algorithms.common import (
     day_metrics,
     days_shape,
     entropy,
+    make_per_cav_mlp,
     masked,
-    obs_scale,
     reset_envs,
     scan_train,
     take_agents,
@@ -63,17 +61,8 @@ def days_per_update(config: IPPOStarConfig) -> int:
 
 
 def make_network(config: IPPOStarConfig, env: RoutingEnv):
-    mlp = MLP(tuple(config.widths), env.n_actions, "relu")
-    scale = jnp.asarray(obs_scale(env) if config.normalize_obs else np.ones(env.obs_size, np.float32))
-
-    def init(key: jax.Array) -> Any:
-        return jax.vmap(lambda k: mlp.init(k, jnp.zeros((env.obs_size,))))(jax.random.split(key, env.n_cavs))
-
-    def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
-        x = jnp.moveaxis(obs / scale, -2, 0)
-        return jnp.moveaxis(jax.vmap(mlp.apply)(take_agents(params, idx), x), 0, -2)
-
-    return init, apply, mlp, scale
+    """(init, apply, mlp, scale): one network per CAV (algorithms.common.make_per_cav_mlp)."""
+    return make_per_cav_mlp(env, config.widths, config.normalize_obs)
 
 
 def make_policy(config: IPPOStarConfig, env: RoutingEnv):

@@ -16,11 +16,9 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 
 from algorithms.common import (
-    MLP,
     Buffer,
     Day,
     IQLStarConfig,
@@ -31,7 +29,7 @@ from algorithms.common import (
     day_metrics,
     eps_greedy,
     flatten_days,
-    obs_scale,
+    make_per_cav_mlp,
     reset_envs,
     scan_train,
     select_tree,
@@ -61,18 +59,8 @@ def bandit_loss(q: jnp.ndarray, action: jnp.ndarray, reward: jnp.ndarray) -> jnp
 
 
 def make_network(config: IQLStarConfig, env: RoutingEnv):
-    """(init(key) -> stacked params, apply(params, obs[..., C, D]) -> q[..., C, K])."""
-    mlp = MLP(tuple(config.widths), env.n_actions, "relu")
-    scale = jnp.asarray(obs_scale(env) if config.normalize_obs else np.ones(env.obs_size, np.float32))
-
-    def init(key: jax.Array) -> Any:
-        return jax.vmap(lambda k: mlp.init(k, jnp.zeros((env.obs_size,))))(jax.random.split(key, env.n_cavs))
-
-    def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
-        x = jnp.moveaxis(obs / scale, -2, 0)
-        return jnp.moveaxis(jax.vmap(mlp.apply)(take_agents(params, idx), x), 0, -2)
-
-    return init, apply, mlp, scale
+    """(init, apply, mlp, scale): one network per CAV (algorithms.common.make_per_cav_mlp)."""
+    return make_per_cav_mlp(env, config.widths, config.normalize_obs)
 
 
 def make_policy(config: IQLStarConfig, env: RoutingEnv):
