@@ -273,6 +273,19 @@ def eps_greedy(key: jax.Array, q: jnp.ndarray, mask: jnp.ndarray, eps: jnp.ndarr
     return jnp.where(explore, rand, greedy).astype(jnp.int32)
 
 
+def eps_greedy_policy(apply: Callable[..., jnp.ndarray], mask: jnp.ndarray) -> Callable[..., Policy]:
+    """(params, eps) -> policy(key, obs[n, D], idx=None) -> actions[n]: epsilon-greedy over valid
+    routes (eps=0: the greedy test policy) for any Q network `apply(params, obs, idx)`."""
+
+    def policy_for(params: Any, eps: float | jnp.ndarray = 0.0) -> Policy:
+        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
+            return eps_greedy(key, apply(params, obs, idx), take_agents(mask, idx), eps)
+
+        return policy
+
+    return policy_for
+
+
 def linear_schedule(start: float, end: float, steps: float) -> Callable[[jnp.ndarray], jnp.ndarray]:
     def schedule(t: jnp.ndarray) -> jnp.ndarray:
         frac = jnp.clip(t / max(steps, 1.0), 0.0, 1.0)

@@ -27,13 +27,12 @@ from algorithms.common import (
     buffer_init,
     collect,
     day_metrics,
-    eps_greedy,
+    eps_greedy_policy,
     flatten_days,
     make_per_cav_mlp,
     reset_envs,
     scan_train,
     select_tree,
-    take_agents,
 )
 from urb_jax.env import EnvState, RoutingEnv
 
@@ -68,13 +67,7 @@ def make_policy(config: IQLStarConfig, env: RoutingEnv):
     _, apply, _, _ = make_network(config, env)
     mask = jnp.asarray(env.action_mask)
 
-    def policy_for(params: Any, eps: float | jnp.ndarray = 0.0):
-        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
-            return eps_greedy(key, apply(params, obs, idx), take_agents(mask, idx), eps)
-
-        return policy
-
-    return policy_for
+    return eps_greedy_policy(apply, mask)
 
 
 def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:

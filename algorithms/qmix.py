@@ -31,7 +31,7 @@ from algorithms.common import (
     collect,
     day_metrics,
     days_shape,
-    eps_greedy,
+    eps_greedy_policy,
     flatten_days,
     hidden_layers,
     linear_schedule,
@@ -44,7 +44,6 @@ from algorithms.common import (
     reset_envs,
     scan_train,
     select_tree,
-    take_agents,
 )
 from urb_jax.env import EnvState, RoutingEnv
 
@@ -109,13 +108,7 @@ def make_policy(config: MixerConfig, env: RoutingEnv):
     net = make_network(config, env)
     mask = jnp.asarray(env.action_mask)
 
-    def policy_for(params: Any, eps: float | jnp.ndarray = 0.0):
-        def policy(key: jax.Array, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
-            return eps_greedy(key, net.apply(params["agent"], obs, idx), take_agents(mask, idx), eps)
-
-        return policy
-
-    return policy_for
+    return eps_greedy_policy(lambda p, obs, idx=None: net.apply(p["agent"], obs, idx), mask)
 
 
 def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> Learner:
