@@ -57,14 +57,9 @@ def plain_bpr(scn, bin_s: float = 300.0):
 
 
 def sumo_seconds(scn, choices: np.ndarray) -> tuple[float, str]:
-    try:
-        from sumo_bridge import run_day
+    from sumo_bridge import run_day
 
-        name = "libsumo"
-    except ImportError:
-        from surrogate.sumo_days import run_day_cli as run_day
-
-        name = "sumo CLI"
+    name = "libsumo"
     times = []
     for _ in range(3):
         t0 = time.perf_counter()
