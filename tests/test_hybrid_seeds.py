@@ -80,20 +80,20 @@ def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa
 
 
 @pytest.mark.slow
-def test_multi_seed_resume_after_kills(pair, confs, tmp_path):  # noqa: F811
-    """A 2-seed run killed after round 1, then in the middle of round 3's SUMO batch, resumed by
-    either seed's id, ends with both seeds' records and metrics equal to the uninterrupted run."""
-    (a, b) = _train(confs, tmp_path, "pair", FakeExecutor(), seeds=[0, 1], stop_after_round=1)
-    assert a["stopped"] == b["stopped"] == 1
-    assert hybrid.latest_checkpoint(a["folder"])[0] == 1  # the group checkpoint is in the first folder
-    assert not (b["folder"] / "checkpoints").exists()
-    with pytest.raises(KeyboardInterrupt):  # round 2 runs, round 3's SUMO batch dies
-        resume_train("pair_s1", results_dir=str(tmp_path), progress=False,
-                     executor=FakeExecutor(fail_on_call=2))
-    assert hybrid.latest_checkpoint(a["folder"])[0] == 2
-    meta = json.loads((a["folder"] / "checkpoints" / "round_00002" / "meta.json").read_text())
+def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa: F811
+    """A 2-seed run killed in the middle of round 2's SUMO batch (executor calls: H human days,
+    1 calibration batch, then one batch per round), resumed by the second seed's id, ends with
+    both seeds' records and metrics equal to the uninterrupted run."""
+    with pytest.raises(KeyboardInterrupt):
+        _train(confs, tmp_path, "pair", FakeExecutor(fail_on_call=H + 3), seeds=[0, 1])
+    lead, other = tmp_path / "pair_s0", tmp_path / "pair_s1"
+    assert hybrid.latest_checkpoint(lead)[0] == 1  # the group checkpoint lives in the first folder
+    assert not (other / "checkpoints").exists()
+    meta = json.loads((lead / "checkpoints" / "round_00001" / "meta.json").read_text())
     assert meta["seeds"] == [0, 1] and len(meta["record_parts"]) == 2
-    finals = resume_train("pair_s0", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    ex = FakeExecutor()
+    finals = resume_train("pair_s1", results_dir=str(tmp_path), progress=False, executor=ex)
+    assert [len(b) for b, _ in ex.batches] == [2 * P] * (ROUNDS - 1 + 10 // P)  # rounds 2-3, test
     for final, ref in zip(finals, pair["outs"], strict=True):
         assert final["folder"].name == ref["folder"].name
         pd.testing.assert_frame_equal(read_records(final["folder"]), read_records(ref["folder"]))
