@@ -1,7 +1,9 @@
 """The hybrid trainer: URB's experiment with CAV training split between a calibrated surrogate
 (jitted, many envs) and SUMO days that fine-tune the policies and refit the surrogate.
 
-Phases (one results folder per training seed, URB layout):
+Seeds train together (`train_group`): the learner state has a leading seed axis, every jitted
+piece is vmapped over it, and each round's SUMO days of all seeds go to the executor as one
+batch. Phases (one results folder per training seed, URB layout):
 1. human learning: H SUMO days (`urb_jax.experiment.train_humans`, t_pre = last 50);
 2. mutation (`draw_cavs`), surrogate calibration on the last `calib_human_days` human days plus
    `calib_varied_days` SUMO days of varied joint actions (not experiment days, not in records);

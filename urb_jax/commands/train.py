@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="hybrid round/budget config id or path (configs/hybrid, default 'default')")
     parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     parser.add_argument("--seeds", default=None, help="comma-separated training seeds, e.g. 0,1,2 "
-                        "(share the human phase and the SUMO pool; one results folder each)")
+                        "(trained together under vmap, sharing the human phase and SUMO pool; a folder each)")
     parser.add_argument("--mode", default="hybrid", choices=MODES,
                         help="hybrid (default), sumo (URB protocol: SUMO days only), "
                              "surrogate (train on the surrogate only; test on SUMO)")
