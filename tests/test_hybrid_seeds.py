@@ -125,3 +125,4 @@ def test_human_phase_reuse_refuses_a_different_phase(confs, tmp_path):  # noqa: 
         _train(confs, tmp_path, "bad", FakeExecutor(), human_phase_from="src")
     with pytest.raises(UrbJaxError, match="not found"):
         _train(confs, tmp_path, "bad2", FakeExecutor(), human_phase_from="nowhere")
+    assert not (tmp_path / "bad").exists() and not (tmp_path / "bad2").exists()  # refused before any folder

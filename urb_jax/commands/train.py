@@ -131,6 +131,10 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
         "exp_type": "normal", "human_days": task.human_learning_episodes, "versions": versions(),
         "command": sys.argv, "status": "running", "human_phase_from": human_phase_from,
     }
+    human = None  # checked before any results folder is created
+    if human_phase_from:
+        human = reuse_human_phase(Path(results_dir) / human_phase_from, common, scn, task, hyb, env_seed,
+                                  calibrate=mode != "sumo")
     folders = {}
     for s in seeds:
         name = exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}"
@@ -139,10 +143,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     executor = executor or _executor(hyb, folders[seeds[0]])
     outs = []
     try:
-        if human_phase_from:
-            human = reuse_human_phase(Path(results_dir) / human_phase_from, common, scn, task, hyb, env_seed,
-                                      calibrate=mode != "sumo")
-        else:
+        if human is None:
             bar = None
             if progress:
                 from tqdm.auto import tqdm
