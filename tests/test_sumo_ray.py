@@ -154,3 +154,67 @@ def test_missing_ray_gives_the_install_command(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` now raises ImportError
     with pytest.raises(UrbJaxError, match=r"pip install 'urb-jax\[ray\]'"):
         import_ray()
+
+
+TINY_IQL = {"agent_frames_per_batch": 2, "mlp_depth": 1, "mlp_cells": 16, "minibatch_size": 64}
+HYB = {"train_days": 12, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
+       "sumo_workers": 2, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20, "refit_days": 4,
+       "refit_steps": 5}
+
+
+def _confs(tmp_path: Path) -> list[str]:
+    import json
+
+    (tmp_path / "alg.json").write_text(json.dumps(TINY_IQL))
+    (tmp_path / "hyb.json").write_text(json.dumps(HYB))
+    return ["--task-conf", "test", "--alg-conf", str(tmp_path / "alg.json"), "--hybrid-conf",
+            str(tmp_path / "hyb.json"), "--results-dir", str(tmp_path / "r"), "--no-progress"]
+
+
+@pytest.mark.slow
+def test_train_with_executor_ray_gives_the_pool_metrics(ray_local, tmp_path):
+    import json
+
+    import pandas as pd
+
+    from urb_jax.cli import main
+
+    flags = _confs(tmp_path)
+    assert main(["train", *flags, "--id", "ray", "--executor", "ray"]) == 0
+    assert main(["train", *flags, "--id", "pool"]) == 0
+    r = tmp_path / "r"
+    cfg = json.loads((r / "ray" / "exp_config.json").read_text())
+    assert cfg["train_args"]["executor"] == "ray" and cfg["status"] == "done"
+    assert json.loads((r / "pool" / "exp_config.json").read_text())["train_args"]["executor"] == "pool"
+    assert (r / "ray" / "sumo_actor1.log").exists()  # the actors' SUMO logs sit in the results folder
+    m_ray = pd.read_csv(r / "ray" / "metrics" / "BenchmarkMetrics.csv")
+    m_pool = pd.read_csv(r / "pool" / "metrics" / "BenchmarkMetrics.csv")
+    pd.testing.assert_frame_equal(m_ray, m_pool)
+    assert np.isfinite(m_ray.select_dtypes("number").to_numpy()).any()
+
+
+def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypatch):
+    import json
+
+    from urb_jax.commands import train
+
+    for exp in ("a", "b"):  # a killed run recorded with --executor ray --ray-address ...
+        (tmp_path / exp).mkdir()
+        (tmp_path / exp / "exp_config.json").write_text(json.dumps(
+            {"status": "running", "train_args": {"executor": "ray", "ray_address": "ray://head:10001"}}))
+    asked = []
+
+    class StopError(Exception):
+        pass
+
+    def fake_executor(hyb, log_dir, kind="pool", ray_address=None):
+        asked.append((kind, ray_address))
+        raise StopError
+
+    monkeypatch.setattr(train, "_setup", lambda args: (None,) * 8)
+    monkeypatch.setattr(train, "_executor", fake_executor)
+    with pytest.raises(StopError):
+        train.resume_train("a", results_dir=str(tmp_path), progress=False)
+    with pytest.raises(StopError):
+        train.resume_train("b", results_dir=str(tmp_path), progress=False, executor_kind="pool")
+    assert asked == [("ray", "ray://head:10001"), ("pool", "ray://head:10001")]
