@@ -132,7 +132,7 @@ class _Slot:
 class RayExecutor:
     """`n_actors` Ray actors running SUMO days; `address` None starts a local Ray, else connects.
 
-    `address`: None = `ray.init(num_cpus=num_cpus or n_actors)` on this machine (shut down again by
+    `address`: None = a new local Ray with `num_cpus or n_actors` CPUs (shut down again by
     `close()`), "auto" = the running cluster this machine belongs to, "ray://host:port" = a remote
     cluster through Ray Client. If Ray is already initialised in this process it is used as is and
     left running. Each actor reserves `actor_cpus` of Ray's logical CPUs (one: a day is one core).
@@ -157,7 +157,9 @@ class RayExecutor:
         self.owns_ray = not ray.is_initialized()
         if self.owns_ray:
             if address is None:
-                ray.init(num_cpus=num_cpus or n_actors, include_dashboard=False, runtime_env=runtime_env)
+                # "local": a new instance even if RAY_ADDRESS or a `ray start` cluster exists
+                ray.init(address="local", num_cpus=num_cpus or n_actors, include_dashboard=False,
+                         runtime_env=runtime_env)
             else:
                 ray.init(address=address, runtime_env=runtime_env)
         extra = {}

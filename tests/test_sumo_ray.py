@@ -24,7 +24,7 @@ def ray_local():
     ray = pytest.importorskip("ray", reason="ray is not installed (pip install 'urb-jax[ray]')")
     # Logical CPUs: the shared executor (2 actors), a one-off executor and the trainer's own
     # 2 actors can coexist; they all share the machine's real cores.
-    ray.init(num_cpus=5, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=5, include_dashboard=False, log_to_driver=False)
     yield ray
     ray.shutdown()
 
