@@ -284,7 +284,7 @@ class RayExecutor:
                         else:
                             fail(s, f"actor {s.index} (pid {s.pid}) raised:", out)
                     elif time.monotonic() - s.started > self.day_timeout_s:
-                        fail(s, f"actor {s.index} (pid {s.pid}) exceeded the {self.day_timeout_s:.0f} s "
+                        fail(s, f"actor {s.index} (pid {s.pid}) exceeded the {self.day_timeout_s:g} s "
                                 "day limit")
         except BaseException:
             for s in self.slots:
