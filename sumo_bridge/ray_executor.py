@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import glob
+import logging
 import os
 import shutil
 import signal
@@ -159,7 +160,7 @@ class RayExecutor:
             if address is None:
                 # "local": a new instance even if RAY_ADDRESS or a `ray start` cluster exists
                 ray.init(address="local", num_cpus=num_cpus or n_actors, include_dashboard=False,
-                         runtime_env=runtime_env)
+                         runtime_env=runtime_env, logging_level=logging.WARNING)
             else:
                 ray.init(address=address, runtime_env=runtime_env)
         extra = {}
