@@ -1,5 +1,5 @@
 """The hybrid trainer end to end on urb_grid with a deterministic stand-in for SUMO days
-(tests/fakeday.py): records, metric provenance, modes, multi-seed, and resume determinism after
+(tests/fakeday.py): records, metric provenance, modes, and resume determinism after
 a kill between rounds and in the middle of a round."""
 
 from __future__ import annotations
@@ -114,19 +114,6 @@ def test_modes(confs, tmp_path, mode):
     assert np.isfinite(out["metrics"]["t_CAV"])
 
 
-@pytest.mark.slow
-def test_multi_seed_shares_human_phase(confs, tmp_path):
-    ex = FakeExecutor()
-    outs = _train(confs, tmp_path, "ms", executor=ex, seeds=[0, 1])
-    assert [o["folder"].name for o in outs] == ["ms_s0", "ms_s1"]
-    humans = [b for b, cav in ex.batches if cav is None and len(b) == 1]
-    assert len(humans) == H  # one human phase for both seeds
-    r0, r1 = (read_records(o["folder"]) for o in outs)
-    pd.testing.assert_frame_equal(r0[r0["day"] <= H].reset_index(drop=True),
-                                  r1[r1["day"] <= H].reset_index(drop=True))
-    assert not r0[r0["day"] > H]["action"].equals(r1[r1["day"] > H]["action"].reset_index(drop=True))
-
-
 def _metrics(folder):
     return pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv")
 
@@ -157,10 +144,10 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
     with pytest.raises(KeyboardInterrupt):
         resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
     monkeypatch.setattr(hybrid, "_checkpoint", real_checkpoint)
-    assert len(list((out["folder"] / "records.parts").glob("part-*"))) > \
-        json.loads((out["folder"] / "checkpoints" / "round_00002" / "meta.json").read_text())["record_parts"]
+    meta = json.loads((out["folder"] / "checkpoints" / "round_00002" / "meta.json").read_text())
+    assert len(list((out["folder"] / "records.parts").glob("part-*"))) > meta["record_parts"][0]
 
-    final = resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    (final,) = resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
     pd.testing.assert_frame_equal(_metrics(final["folder"]), _metrics(ref["folder"]))
     pd.testing.assert_frame_equal(read_records(final["folder"]), ref_rec)
     pd.testing.assert_frame_equal(pd.read_csv(final["folder"] / "rounds.csv").filter(like="time"),

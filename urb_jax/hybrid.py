@@ -1,7 +1,9 @@
 """The hybrid trainer: URB's experiment with CAV training split between a calibrated surrogate
 (jitted, many envs) and SUMO days that fine-tune the policies and refit the surrogate.
 
-Phases (one results folder per training seed, URB layout):
+Seeds train together (`train_group`): the learner state has a leading seed axis, every jitted
+piece is vmapped over it, and each round's SUMO days of all seeds go to the executor as one
+batch. Phases (one results folder per training seed, URB layout):
 1. human learning: H SUMO days (`urb_jax.experiment.train_humans`, t_pre = last 50);
 2. mutation (`draw_cavs`), surrogate calibration on the last `calib_human_days` human days plus
    `calib_varied_days` SUMO days of varied joint actions (not experiment days, not in records);
@@ -72,6 +74,7 @@ class HybridConfig:
     refit_days: int = 32
     refit_steps: int = 150
     day_timeout_s: float = 600.0
+    max_vmapped_seeds: int = 8  # seeds trained together under vmap; longer seed lists train in groups
 
 
 def load_hybrid_config(name: str = "default") -> tuple[HybridConfig, Path]:
@@ -204,13 +207,31 @@ def latest_checkpoint(folder: Path) -> tuple[int, Path] | None:
     return (done[-1], root / f"round_{done[-1]:05d}") if done else None
 
 
-def train_seed(
+def train_seed(*, folder: Path, seed: int, **kw: Any) -> dict[str, Any]:
+    """One seed: `train_group` with a group of one."""
+    return train_group(folders=[folder], seeds=[seed], **kw)[0]
+
+
+def _stack(trees: list[Any]) -> Any:
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *trees)
+
+
+def _take(tree: Any, s: int) -> Any:
+    return jax.tree_util.tree_map(lambda x: x[s], tree)
+
+
+def train_group(
     *, scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, alg_config: Any, cfg: HybridConfig,
-    mode: str, seed: int, env_seed: int, folder: Path, executor: Any, human: HumanPhase | None,
+    mode: str, seeds: list[int], env_seed: int, folders: list[Path], executor: Any, human: HumanPhase | None,
     progress: bool = True, stop_after_round: int | None = None,
-) -> dict[str, Any]:
-    """Train one seed in `folder` (fresh when `human` is given, else resumed from its newest
-    checkpoint); returns the run summary. `stop_after_round` simulates a kill (tests)."""
+) -> list[dict[str, Any]]:
+    """Train S seeds together, seed s in `folders[s]` (fresh when `human` is given, else resumed from
+    the group checkpoint in `folders[0]`); returns one run summary per seed.
+
+    Every learner function is vmapped over a leading seed axis (runner [S], real humans [S, P],
+    surrogate parameters [S]); each round's S x P SUMO days go to the executor in one batch, and
+    the test days likewise. Each seed refits its own surrogate on its own SUMO days (a loop over
+    seeds outside the jitted training). `stop_after_round` simulates a kill (tests)."""
     from surrogate import SumoSample, build_static, init_params, predict
     from surrogate.calibrate import REFIT, FitConfig, fit_params
     from urb_jax.mutation import draw_cavs
@@ -218,6 +239,7 @@ def train_seed(
 
     if mode not in MODES:
         raise ValueError(f"mode {mode!r}: use one of {MODES}")
+    S = len(seeds)
     n = scn.n_agents
     H, E = task.human_learning_episodes, task.test_eps
     hp = task.human_params()
@@ -245,139 +267,177 @@ def train_seed(
     learner, alg_config = learner_for(alg, alg_config, env, cfg, n_rounds, mode, n_iters_round)
     P = cfg.sumo_days_per_round
     levels = dependency_levels(env)
-    k_rounds, k_test, k_start = jax.random.split(jax.random.PRNGKey(seed), 3)
+    keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
+    k_rounds, k_test, k_start = keys[:, 0], keys[:, 1], keys[:, 2]  # [S, 2] each
     refit_cfg = dataclasses.replace(REFIT, steps=cfg.refit_steps)
 
-    # ---- jitted pieces
-    @jax.jit
-    def sur_round(runner: Any, key: jax.Array):
+    # ---- jitted pieces, each vmapped over the leading seed axis
+    def _sur_round(runner: Any, key: jax.Array):
         return jax.lax.scan(learner.iteration, runner, jax.random.split(key, n_iters_round))
 
-    @jax.jit
-    def update(runner: Any, days: Day, key: jax.Array):
-        return learner.update_from_days(runner, days, key)
+    sur_round = jax.jit(jax.vmap(_sur_round))
+    update = jax.jit(jax.vmap(learner.update_from_days))
 
     def _act(runner: Any, keys: jax.Array, states: Any, explore: bool):
         pol = learner.policy(runner, explore)
         obs, actions = jax.vmap(lambda k, s: act_by_levels(real_env, k, s, pol, levels))(keys, states)
         return obs, actions, jax.vmap(real_env.joint_actions)(states, actions)
 
-    act_explore = jax.jit(lambda r, k, s: _act(r, k, s, True))
-    act_greedy = jax.jit(lambda r, k, s: _act(r, k, s, False))
+    act_explore = jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, True)))
+    act_greedy = jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, False)))
 
-    @jax.jit
-    def sumo_step(keys: jax.Array, states: Any, obs: jnp.ndarray, actions: jnp.ndarray, times: jnp.ndarray):
+    def _sumo_step(keys: jax.Array, states: Any, obs: jnp.ndarray, actions: jnp.ndarray, times: jnp.ndarray):
         states = states._replace(travel_params=times)
         next_obs, states, rewards, dones, info = jax.vmap(real_env.step)(keys, states, actions)
         day = Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"])
         return states, jax.tree_util.tree_map(lambda x: x[None], day)  # [1, P, ...]
 
-    predict_days = jax.jit(lambda params, choices: predict(params, static, choices))
+    sumo_step = jax.jit(jax.vmap(_sumo_step))
+    predict_days = jax.jit(jax.vmap(lambda params, choices: predict(params, static, choices)))
+    set_params = jax.jit(jax.vmap(RoutingEnv.with_travel_params))
+    split_p = jax.vmap(lambda k: jax.random.split(k, P))
+    round_keys = jax.jit(jax.vmap(lambda k, r: jax.random.split(jax.random.fold_in(k, r), 4), (0, None)))
+
+    @jax.jit
+    def fresh_runner_real(k_start: jax.Array):
+        def one(k: jax.Array):
+            k_init, k_real = jax.random.split(k)
+            _, real = jax.vmap(real_env.reset)(jax.random.split(k_real, P))
+            return learner.init(k_init), real
+
+        return jax.vmap(one)(k_start)
 
     def fresh_state() -> dict[str, Any]:
-        k_init, k_real = jax.random.split(k_start)
-        _, real = jax.vmap(real_env.reset)(jax.random.split(k_real, P))
-        return {"runner": learner.init(k_init), "real": real, "params": p0}
+        runner, real = fresh_runner_real(k_start)
+        return {"runner": runner, "real": real, "params": _stack([p0] * S)}
 
     # ---- start or resume
-    writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart, flush_every=10**9)
+    writers = [RecordsWriter(f, scn.agent_id, scn.agent_od, scn.agent_depart, flush_every=10**9)
+               for f in folders]
+    lead = folders[0]
     if human is not None:
         state = fresh_state()
-        for rec in human.records:
-            writer.add(rec)
-        sample = SumoSample(human.calib_choices, human.calib_times, human.calib_arrived)
-        if mode != "sumo" and len(sample):
-            state["params"] = fit_params(p0, static, sample, FitConfig(steps=cfg.calib_steps))
-        state["real"] = state["real"]._replace(humans=jax.vmap(lambda _: human.humans)(jnp.arange(P)))
-        rounds_log: list[dict[str, Any]] = []
+        for writer in writers:
+            for rec in human.records:
+                writer.add(rec)
+        sample0 = SumoSample(human.calib_choices, human.calib_times, human.calib_arrived)
+        if mode != "sumo" and len(sample0):
+            fitted = fit_params(p0, static, sample0, FitConfig(steps=cfg.calib_steps))
+            state["params"] = _stack([fitted] * S)  # the same calibration for every seed
+        state["real"] = state["real"]._replace(
+            humans=jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (S, P, *x.shape)), human.humans))
+        samples = [sample0] * S
+        rounds_logs: list[list[dict[str, Any]]] = [[] for _ in seeds]
         start, sumo_done = 0, 0
-        writer.flush()
-        _checkpoint(folder, 0, state, sample, writer, rounds_log, sumo_done)
+        for writer in writers:
+            writer.flush()
+        _checkpoint(lead, 0, state, samples, writers, rounds_logs, sumo_done, seeds, folders)
     else:
-        found = latest_checkpoint(folder)
+        found = latest_checkpoint(lead)
         if found is None:
-            raise RuntimeError(f"{folder}: no checkpoint to resume from")
+            raise RuntimeError(f"{lead}: no checkpoint to resume from")
         start, ckpt = found
-        state = _restore_state(ckpt / "state", fresh_state())
         meta = json.loads((ckpt / "meta.json").read_text())
+        if meta.get("seeds", seeds) != list(seeds):
+            raise RuntimeError(f"{ckpt}: checkpoint holds seeds {meta['seeds']}, not {list(seeds)}")
+        state = _restore_state(ckpt / "state", fresh_state())
         z = np.load(ckpt / "sumo_days.npz")
-        sample = SumoSample(z["choices"], z["travel_time"], z["arrived"])
-        rounds_log, sumo_done = meta["rounds"], meta["sumo_days"]
-        _truncate_parts(writer, meta["record_parts"])
-    runner = state["runner"]
-    runner = runner._replace(env_states=RoutingEnv.with_travel_params(runner.env_states, state["params"]))
-    real, params = state["real"], state["params"]
+        samples = [SumoSample(z[f"choices_{i}"], z[f"travel_time_{i}"], z[f"arrived_{i}"]) for i in range(S)]
+        rounds_logs, sumo_done = meta["rounds"], meta["sumo_days"]
+        for writer, parts in zip(writers, meta["record_parts"], strict=True):
+            _truncate_parts(writer, parts)
+    runner, real, params = state["runner"], state["real"], state["params"]
+    runner = runner._replace(env_states=set_params(runner.env_states, params))
 
     T_sumo = n_rounds * sumo_per_round
-    bar = _Progress(H + n_rounds * (sur_per_round + sumo_per_round) + E, progress)
-    bar.update(H + start * (sur_per_round + sumo_per_round), "resume" if human is None else "human")
+    tag = f"[{S} seeds] " if S > 1 else ""
+    bar = _Progress(S * (H + n_rounds * (sur_per_round + sumo_per_round) + E), progress)
+    bar.update(S * (H + start * (sur_per_round + sumo_per_round)),
+               tag + ("resume" if human is None else "human"))
     for r in range(start, n_rounds):
-        k_sur, k_act, k_step, k_upd = jax.random.split(jax.random.fold_in(k_rounds, r), 4)
-        row: dict[str, Any] = {"round": r + 1}
+        rk = round_keys(k_rounds, r)  # [S, 4, 2]
+        k_sur, k_act, k_step, k_upd = rk[:, 0], rk[:, 1], rk[:, 2], rk[:, 3]
+        rows: list[dict[str, Any]] = [{"round": r + 1} for _ in seeds]
         if sur_per_round:
             t0 = time.perf_counter()
             runner, m = sur_round(runner, k_sur)
-            m = jax.tree_util.tree_map(lambda x: float(np.mean(x)), m)
+            m = {k: np.asarray(v).reshape(S, -1).mean(1) for k, v in m.items()}
             dt = time.perf_counter() - t0
-            row |= {"surrogate_days": sur_per_round, "surrogate_s": dt, "sur_time_cav": m["time_cav"],
-                    "sur_time_hdv": m["time_human"]}
-            bar.update(sur_per_round, "train/surrogate", sur_days_s=sur_per_round / dt,
-                       sur_tCAV=m["time_cav"], sur_tHDV=m["time_human"])
+            for i, row in enumerate(rows):
+                row |= {"surrogate_days": sur_per_round, "surrogate_s": dt,
+                        "sur_time_cav": float(m["time_cav"][i]), "sur_time_hdv": float(m["time_human"][i])}
+            bar.update(S * sur_per_round, tag + "train/surrogate", sur_days_s=S * sur_per_round / dt,
+                       sur_tCAV=float(m["time_cav"].mean()), sur_tHDV=float(m["time_human"].mean()))
         if sumo_per_round:
             t0 = time.perf_counter()
-            obs, actions, choices = act_explore(runner, jax.random.split(k_act, P), real)
-            choices = np.asarray(choices)
-            results = executor.run_days(scn, choices, [env_seed] * P, is_cav=is_cav)
-            times = np.stack([res.travel_time for res in results]).astype(np.float32)
-            real, days = sumo_step(jax.random.split(k_step, P), real, obs, actions, jnp.asarray(times))
+            obs, actions, choices = act_explore(runner, split_p(k_act), real)
+            choices = np.asarray(choices)  # [S, P, N]
+            results = executor.run_days(scn, choices.reshape(S * P, n), [env_seed] * (S * P), is_cav=is_cav)
+            times = np.stack([res.travel_time for res in results]).astype(np.float32).reshape(S, P, n)
+            real, days = sumo_step(split_p(k_step), real, obs, actions, jnp.asarray(times))
             for u in range(cfg.sumo_updates):
-                runner, _ = update(runner, days, jax.random.fold_in(k_upd, u))
+                runner, _ = update(runner, days, jax.vmap(lambda k, u=u: jax.random.fold_in(k, u))(k_upd))
             pred = np.asarray(predict_days(params, jnp.asarray(choices)))
-            new = SumoSample.from_days(choices, results)
-            sample = sample + new
-            _record_days(writer, H + sumo_done, PHASE_TRAIN, choices, is_cav, results, days, cav_index)
+            new_params = []
+            for i, seed in enumerate(seeds):
+                res_i = results[i * P:(i + 1) * P]
+                samples[i] = samples[i] + SumoSample.from_days(choices[i], res_i)
+                _record_days(writers[i], H + sumo_done, PHASE_TRAIN, choices[i], is_cav, res_i,
+                             _take(days, i), cav_index)
+                if mode == "hybrid":
+                    sample = samples[i]
+                    rng = np.random.default_rng([seed, r, 0xF17])
+                    pick = rng.choice(len(sample), size=cfg.refit_days, replace=len(sample) < cfg.refit_days)
+                    sub = SumoSample(sample.choices[pick], sample.travel_time[pick], sample.arrived[pick])
+                    new_params.append(fit_params(_take(params, i), static, sub, refit_cfg))
             sumo_done += P
             if mode == "hybrid":
-                rng = np.random.default_rng([seed, r, 0xF17])
-                pick = rng.choice(len(sample), size=cfg.refit_days, replace=len(sample) < cfg.refit_days)
-                sub = SumoSample(sample.choices[pick], sample.travel_time[pick], sample.arrived[pick])
-                params = fit_params(params, static, sub, refit_cfg)
-                runner = runner._replace(env_states=RoutingEnv.with_travel_params(runner.env_states, params))
+                params = _stack(new_params)
+                runner = runner._replace(env_states=set_params(runner.env_states, params))
             dt = time.perf_counter() - t0
-            sumo_cav = float(times[:, cav_index].mean()) if cav_index.size else float("nan")
-            sumo_hdv = float(times[:, ~is_cav].mean())
-            row |= {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": sumo_cav, "sumo_time_hdv": sumo_hdv,
-                    "surrogate_mean_error": float((pred.mean(1) - times.mean(1)).mean() / times.mean()),
-                    "surrogate_mape": float(np.mean(np.abs(pred - times) / times))}
-            bar.update(P, "train/SUMO", sumo_days_s=P / dt, sumo_tCAV=sumo_cav, sumo_tHDV=sumo_hdv)
-        rounds_log.append(row)
-        writer.flush()
-        _checkpoint(folder, r + 1, {"runner": runner, "real": real, "params": params}, sample, writer,
-                    rounds_log, sumo_done)
+            for i, row in enumerate(rows):
+                t = times[i]
+                sumo_cav = float(t[:, cav_index].mean()) if cav_index.size else float("nan")
+                row |= {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": sumo_cav,
+                        "sumo_time_hdv": float(t[:, ~is_cav].mean()),
+                        "surrogate_mean_error": float((pred[i].mean(1) - t.mean(1)).mean() / t.mean()),
+                        "surrogate_mape": float(np.mean(np.abs(pred[i] - t) / t))}
+            bar.update(S * P, tag + "train/SUMO", sumo_days_s=S * P / dt,
+                       sumo_tCAV=float(np.mean([row["sumo_time_cav"] for row in rows])),
+                       sumo_tHDV=float(np.mean([row["sumo_time_hdv"] for row in rows])))
+        for log, row in zip(rounds_logs, rows, strict=True):
+            log.append(row)
+        for writer in writers:
+            writer.flush()
+        _checkpoint(lead, r + 1, {"runner": runner, "real": real, "params": params}, samples, writers,
+                    rounds_logs, sumo_done, seeds, folders)
         if stop_after_round is not None and r + 1 >= stop_after_round:
             bar.close()
-            return {"stopped": r + 1}
+            return [{"stopped": r + 1} for _ in seeds]
 
-    # ---- test: frozen greedy policies, SUMO only
+    # ---- test: frozen greedy policies, SUMO only; S x b days per executor batch
     for start_day in range(0, E, P):
         b = min(P, E - start_day)
-        kt = jax.random.fold_in(k_test, start_day)
-        k_act, k_step = jax.random.split(kt)
-        obs, actions, choices = act_greedy(runner, jax.random.split(k_act, P), real)
-        choices = np.asarray(choices)[:b]
-        results = executor.run_days(scn, choices, [env_seed] * b, is_cav=is_cav)
-        times = np.zeros((P, n), np.float32)
-        times[:b] = np.stack([res.travel_time for res in results])
-        times[b:] = times[0]
-        real2, days = sumo_step(jax.random.split(k_step, P), real, obs, actions, jnp.asarray(times))
-        real = real2
-        days = jax.tree_util.tree_map(lambda x, b=b: x[:, :b], days)
-        _record_days(writer, H + T_sumo + start_day, PHASE_TEST, choices, is_cav, results, days, cav_index)
-        bar.update(b, "test/SUMO", sumo_tCAV=float(times[:b, cav_index].mean()) if cav_index.size else 0.0)
+        kt = jax.vmap(lambda k, d=start_day: jax.random.split(jax.random.fold_in(k, d)))(k_test)
+        obs, actions, choices = act_greedy(runner, split_p(kt[:, 0]), real)
+        choices = np.asarray(choices)[:, :b]  # [S, b, N]
+        results = executor.run_days(scn, choices.reshape(S * b, n), [env_seed] * (S * b), is_cav=is_cav)
+        times = np.zeros((S, P, n), np.float32)
+        times[:, :b] = np.stack([res.travel_time for res in results]).reshape(S, b, n)
+        times[:, b:] = times[:, :1]
+        real, days = sumo_step(split_p(kt[:, 1]), real, obs, actions, jnp.asarray(times))
+        for i in range(S):
+            days_i = jax.tree_util.tree_map(lambda x, b=b, i=i: x[i, :, :b], days)
+            _record_days(writers[i], H + T_sumo + start_day, PHASE_TEST, choices[i], is_cav,
+                         results[i * b:(i + 1) * b], days_i, cav_index)
+        bar.update(S * b, tag + "test/SUMO",
+                   sumo_tCAV=float(times[:, :b][..., cav_index].mean()) if cav_index.size else 0.0)
     bar.close()
-    writer.close()
-    return {"rounds": rounds_log, "human_days": H, "sumo_training_days": T_sumo, "n_rounds": n_rounds,
-            "surrogate_days": n_rounds * sur_per_round, "alg_config": dataclasses.asdict(alg_config)}
+    for writer in writers:
+        writer.close()
+    return [{"rounds": log, "human_days": H, "sumo_training_days": T_sumo, "n_rounds": n_rounds,
+             "surrogate_days": n_rounds * sur_per_round, "alg_config": dataclasses.asdict(alg_config),
+             "seeds_together": S} for log in rounds_logs]
 
 
 def _record_days(writer: Any, first_day_minus1: int, phase: str, choices: np.ndarray, is_cav: np.ndarray,
@@ -393,20 +453,26 @@ def _record_days(writer: Any, first_day_minus1: int, phase: str, choices: np.nda
         writer.add(DayRecord(first_day_minus1 + p + 1, phase, choices[p], is_cav, res, rew, obs_all, True))
 
 
-def _checkpoint(folder: Path, rounds_done: int, state: dict[str, Any], sample: Any, writer: Any,
-                rounds_log: list[dict[str, Any]], sumo_done: int) -> None:
-    """checkpoints/round_NNNNN/{state (orbax), sumo_days.npz, meta.json (written last)}; older
-    checkpoints are removed once the new one is complete."""
+def _checkpoint(folder: Path, rounds_done: int, state: dict[str, Any], samples: list[Any], writers: list[Any],
+                rounds_logs: list[list[dict[str, Any]]], sumo_done: int, seeds: list[int],
+                folders: list[Path]) -> None:
+    """checkpoints/round_NNNNN/{state (orbax, every seed), sumo_days.npz (per seed), meta.json
+    (written last)} in the group's first folder; older checkpoints are removed once the new one
+    is complete."""
     d = folder / CKPT_DIR / f"round_{rounds_done:05d}"
     if d.exists():
         shutil.rmtree(d)
     d.mkdir(parents=True)
     leaves = jax.tree_util.tree_leaves(state)
     save_checkpoint(d / "state", {f"{i:05d}": np.asarray(x) for i, x in enumerate(leaves)})
-    _atomic_npz(d / "sumo_days.npz", choices=sample.choices, travel_time=sample.travel_time,
-                arrived=sample.arrived)
-    _atomic_json(d / "meta.json", {"rounds_done": rounds_done, "sumo_days": sumo_done,
-                                   "record_parts": writer._n_parts, "rounds": rounds_log})
+    arrays = {}
+    for i, sample in enumerate(samples):
+        arrays |= {f"choices_{i}": sample.choices, f"travel_time_{i}": sample.travel_time,
+                   f"arrived_{i}": sample.arrived}
+    _atomic_npz(d / "sumo_days.npz", **arrays)
+    _atomic_json(d / "meta.json", {"rounds_done": rounds_done, "sumo_days": sumo_done, "seeds": list(seeds),
+                                   "folders": [f.name for f in folders],
+                                   "record_parts": [w._n_parts for w in writers], "rounds": rounds_logs})
     for old in (folder / CKPT_DIR).glob("round_*"):
         if old != d:
             shutil.rmtree(old, ignore_errors=True)

@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="hybrid round/budget config id or path (configs/hybrid, default 'default')")
     parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     parser.add_argument("--seeds", default=None, help="comma-separated training seeds, e.g. 0,1,2 "
-                        "(share the human phase and the SUMO pool; one results folder each)")
+                        "(trained together under vmap, sharing the human phase and SUMO pool; a folder each)")
     parser.add_argument("--mode", default="hybrid", choices=MODES,
                         help="hybrid (default), sumo (URB protocol: SUMO days only), "
                              "surrogate (train on the surrogate only; test on SUMO)")
@@ -39,6 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="experiment id (default <alg>_<mode>_<net>_<task>_s<seed>)")
     parser.add_argument("--resume", default=None, metavar="EXP_ID",
                         help="continue the killed run EXP_ID in --results-dir from its last checkpoint")
+    parser.add_argument("--human-phase-from", default=None, metavar="EXP_ID",
+                        help="reuse the human phase (records, human state, calibration days) of run EXP_ID")
     parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing results with this id")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -52,8 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.resume:
-        outs = [resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
-                             executor_kind=args.executor, ray_address=args.ray_address)]
+        outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
+                            executor_kind=args.executor, ray_address=args.ray_address)
     else:
         seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else [args.seed]
         outs = run_train(
@@ -61,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
             env_conf=args.env_conf, hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=seeds,
             exp_id=args.id, mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
             overwrite=args.overwrite, progress=not args.no_progress, train_days=args.train_days,
-            executor_kind=args.executor or "pool", ray_address=args.ray_address)
+            executor_kind=args.executor or "pool", ray_address=args.ray_address,
+            human_phase_from=args.human_phase_from)
     for out in outs:
         m = out["metrics"]
         print(f"results: {out['folder']}  ({out['wall_time_s']:.1f} s)")
@@ -113,9 +116,13 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
               networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
               progress: bool = True, train_days: int | None = None, executor: Any = None,
               stop_after_round: int | None = None, executor_kind: str = "pool",
-              ray_address: str | None = None) -> list[dict[str, Any]]:
-    """Train every seed (sharing the human phase and the SUMO pool); one results folder per seed."""
+              ray_address: str | None = None, human_phase_from: str | None = None
+              ) -> list[dict[str, Any]]:
+    """Train every seed (sharing the human phase and the SUMO pool; groups of up to
+    `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
+    `human_phase_from`: reuse that earlier train run's human phase instead of simulating it."""
     from urb_jax.configio import to_dict
+    from urb_jax.human_reuse import reuse_human_phase, save_human_phase
     from urb_jax.hybrid import run_human_phase
     from urb_jax.network import DEFAULT_NETWORK
     from urb_jax.results import create_results_dir, versions, write_json
@@ -128,6 +135,15 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     t0 = time.perf_counter()
     scn, task, task_path, env, env_path, hyb, hyb_path, alg_config = _setup(args)
     base = exp_id or f"{alg}_{mode}_{Path(net).name}_{task_path.stem}"
+    common = {
+        **to_dict(env), **to_dict(task), **{f"hybrid_{k}": v for k, v in to_dict(hyb).items()},
+        "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed,
+        "env_config": env_path.stem, "task_config": task_path.stem, "alg_config": alg_conf,
+        "hybrid_config": hyb_path.stem, "algorithm": alg, "mode": mode, "script": "urb-jax train",
+        "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
+        "exp_type": "normal", "human_days": task.human_learning_episodes, "versions": versions(),
+        "command": sys.argv, "status": "running", "human_phase_from": human_phase_from,
+    }
     folders = {}
     for s in seeds:
         name = exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}"
@@ -136,40 +152,44 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     executor = executor or _executor(hyb, folders[seeds[0]], executor_kind, ray_address)
     outs = []
     try:
-        bar = None
-        if progress:
-            from tqdm.auto import tqdm
+        if human_phase_from:
+            human = reuse_human_phase(Path(results_dir) / human_phase_from, common, scn, task, hyb, env_seed,
+                                      calibrate=mode != "sumo")
+        else:
+            bar = None
+            if progress:
+                from tqdm.auto import tqdm
 
-            bar = tqdm(total=task.human_learning_episodes + (hyb.calib_varied_days if mode != "sumo" else 0),
-                       unit="day", dynamic_ncols=True, desc="human/SUMO")
+                calib_days = hyb.calib_varied_days if mode != "sumo" else 0
+                bar = tqdm(total=task.human_learning_episodes + calib_days, unit="day", dynamic_ncols=True,
+                           desc="human/SUMO")
 
-        def on_day(phase: str, n: int) -> None:
+            def on_day(phase: str, n: int) -> None:
+                if bar is not None:
+                    bar.set_description(f"{phase}/SUMO")
+                    bar.update(n)
+
+            human = run_human_phase(scn, task, hyb, executor, env_seed, on_day=on_day,
+                                    calibrate=mode != "sumo")
             if bar is not None:
-                bar.set_description(f"{phase}/SUMO")
-                bar.update(n)
-
-        human = run_human_phase(scn, task, hyb, executor, env_seed, on_day=on_day, calibrate=mode != "sumo")
-        if bar is not None:
-            bar.close()
+                bar.close()
+        for folder in folders.values():
+            save_human_phase(folder, human)
         t_human = time.perf_counter() - t0
-        for s in seeds:
-            folder = folders[s]
-            config = {
-                **to_dict(env), **to_dict(task), **{f"hybrid_{k}": v for k, v in to_dict(hyb).items()},
-                "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed, "seed": s,
-                "env_config": env_path.stem, "task_config": task_path.stem, "alg_config": alg_conf,
-                "hybrid_config": hyb_path.stem, "algorithm": alg, "mode": mode, "script": "urb-jax train",
-                "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
-                "exp_type": "normal", "human_days": task.human_learning_episodes, "versions": versions(),
-                "command": sys.argv, "status": "running", "train_args": args | {"seed": s},
-                "human_phase_s": round(t_human, 2),
-            }
-            write_json(folder / "exp_config.json", config)
+        size = max(1, hyb.max_vmapped_seeds)
+        groups = [seeds[i:i + size] for i in range(0, len(seeds), size)]
+        for gi, group in enumerate(groups):
+            configs = {s: {**common, "seed": s, "train_args": args | {"seed": s},
+                           "group": [folders[g].name for g in group], "seeds_together": len(group),
+                           "human_phase_s": round(t_human, 2)} for s in group}
+            for s in group:
+                write_json(folders[s] / "exp_config.json", configs[s])
             ts = time.perf_counter()
-            summary = _train(scn, task, env, hyb, alg, alg_config, mode, s, env_seed, folder, executor, human,
-                             progress, stop_after_round)
-            wall = time.perf_counter() - ts + (t_human if s == seeds[0] else 0.0)
-            outs.append(_finish(folder, config, summary, task, wall))
+            summaries = _train(scn, task, env, hyb, alg, alg_config, mode, group, env_seed,
+                               [folders[s] for s in group], executor, human, progress, stop_after_round)
+            wall = time.perf_counter() - ts + (t_human if gi == 0 else 0.0)
+            for s, summary in zip(group, summaries, strict=True):
+                outs.append(_finish(folders[s], configs[s], summary, task, wall))
     finally:
         if own:
             executor.close()
@@ -178,36 +198,44 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
 
 def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
                  executor: Any = None, executor_kind: str | None = None,
-                 ray_address: str | None = None) -> dict[str, Any]:
-    """Continue results/<exp_id>/ from its newest checkpoint, with the recorded arguments
-    (and the recorded SUMO executor unless `executor_kind` overrides it)."""
+                 ray_address: str | None = None) -> list[dict[str, Any]]:
+    """Continue results/<exp_id>/ (and the seeds trained together with it) from the group's newest
+    checkpoint, with the recorded arguments (and the recorded SUMO executor unless `executor_kind`
+    overrides it); one result per seed of the group."""
     folder = Path(results_dir) / exp_id
     config = json.loads((folder / "exp_config.json").read_text())
-    if config.get("status") == "done":
+    folders = [Path(results_dir) / name for name in config.get("group", [exp_id])]
+    configs = [json.loads((f / "exp_config.json").read_text()) for f in folders]
+    if all(c.get("status") == "done" for c in configs):
         raise SystemExit(f"{folder}: this run is already complete.")
-    args = config["train_args"]
+    args = configs[0]["train_args"]
+    seeds = [c["train_args"]["seed"] for c in configs]
     scn, task, _, env, _, hyb, _, alg_config = _setup(args)
     own = executor is None
-    executor = executor or _executor(hyb, folder, executor_kind or args.get("executor", "pool"),
+    executor = executor or _executor(hyb, folders[0], executor_kind or args.get("executor", "pool"),
                                      ray_address or args.get("ray_address"))
     t0 = time.perf_counter()
     try:
-        summary = _train(scn, task, env, hyb, args["alg"], alg_config, args["mode"], args["seed"],
-                         args["env_seed"], folder, executor, None, progress, None)
+        summaries = _train(scn, task, env, hyb, args["alg"], alg_config, args["mode"], seeds,
+                           args["env_seed"], folders, executor, None, progress, None)
     finally:
         if own:
             executor.close()
-    config["resumed"] = config.get("resumed", 0) + 1
-    return _finish(folder, config, summary, task, time.perf_counter() - t0 + config.get("wall_time_s", 0.0))
+    wall = time.perf_counter() - t0
+    outs = []
+    for f, c, summary in zip(folders, configs, summaries, strict=True):
+        c["resumed"] = c.get("resumed", 0) + 1
+        outs.append(_finish(f, c, summary, task, wall + c.get("wall_time_s", 0.0)))
+    return outs
 
 
-def _train(scn, task, env, hyb, alg, alg_config, mode, seed, env_seed, folder, executor, human, progress,
+def _train(scn, task, env, hyb, alg, alg_config, mode, seeds, env_seed, folders, executor, human, progress,
            stop_after_round):
-    from urb_jax.hybrid import train_seed
+    from urb_jax.hybrid import train_group
 
-    return train_seed(scn=scn, task=task, env_cfg=env, alg=alg, alg_config=alg_config, cfg=hyb, mode=mode,
-                      seed=seed, env_seed=env_seed, folder=folder, executor=executor, human=human,
-                      progress=progress, stop_after_round=stop_after_round)
+    return train_group(scn=scn, task=task, env_cfg=env, alg=alg, alg_config=alg_config, cfg=hyb, mode=mode,
+                       seeds=seeds, env_seed=env_seed, folders=folders, executor=executor, human=human,
+                       progress=progress, stop_after_round=stop_after_round)
 
 
 def _finish(folder: Path, config: dict[str, Any], summary: dict[str, Any], task: Any, wall: float) -> dict:

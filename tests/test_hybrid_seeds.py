@@ -1,0 +1,127 @@
+"""Multi-seed training under vmap and human-phase reuse, on urb_grid with the FakeDay stand-in for
+SUMO (tests/fakeday.py) and a short budget (3 rounds of 4 surrogate env-days + 2 SUMO days)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_hybrid_loop import FakeExecutor, H, confs  # noqa: F401  (confs is a fixture)
+
+from urb_jax import hybrid
+from urb_jax.commands.train import resume_train, run_train
+from urb_jax.errors import UrbJaxError
+from urb_jax.results import read_records
+
+P, ROUNDS = 2, 3
+
+
+def _train(confs, root, exp_id, executor, **kw):  # noqa: F811
+    return run_train(alg="iql", exp_id=exp_id, results_dir=str(root), progress=False, executor=executor,
+                     **confs, **kw)
+
+
+def _metrics(folder):
+    return pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv")
+
+
+def _with_conf(confs, tmp_path, **hyb):  # noqa: F811
+    cfg = json.loads(Path(confs["hybrid_conf"]).read_text()) | hyb
+    path = tmp_path / "hyb_override.json"
+    path.write_text(json.dumps(cfg))
+    return confs | {"hybrid_conf": str(path)}
+
+
+@pytest.fixture(scope="module")
+def pair(confs, tmp_path_factory):  # noqa: F811
+    """The reference: seeds 0 and 1 trained together (vmapped), uninterrupted."""
+    root = tmp_path_factory.mktemp("pair")
+    ex = FakeExecutor()
+    outs = _train(confs, root, "pair", ex, seeds=[0, 1])
+    return {"root": root, "outs": outs, "executor": ex}
+
+
+@pytest.mark.slow
+def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa: F811
+    """Each seed of a vmapped 2-seed run gets exactly the SUMO choices, records and metrics of the
+    same seed trained alone (`max_vmapped_seeds: 1` trains the two seeds one after another, each a
+    group of one). Exact equality holds because every seed's randomness flows from its own key and
+    XLA computes each vmapped row with the same arithmetic as the unbatched program on CPU (no
+    cross-seed reduction); if a backend ever reorders a batched reduction, this test is where it
+    shows."""
+    ex = FakeExecutor()
+    alone = _train(_with_conf(confs, tmp_path, max_vmapped_seeds=1), tmp_path, "alone", ex, seeds=[0, 1])
+    together = pair["outs"]
+    # One human phase for both seeds (H single-day human batches) in both runs.
+    for e in (pair["executor"], ex):
+        assert len([b for b, cav in e.batches if cav is None and len(b) == 1]) == H
+    # Vmapped: each round's (and each test chunk's) days of both seeds go out as one batch of 2 x P.
+    cav_batches = [len(b) for b, cav in pair["executor"].batches if cav is not None]
+    assert cav_batches == [2 * P] * (ROUNDS + 10 // P)
+    assert [len(b) for b, cav in ex.batches if cav is not None] == [P] * 2 * (ROUNDS + 10 // P)
+    for a, b in zip(together, alone, strict=True):
+        cfg_a = json.loads((a["folder"] / "exp_config.json").read_text())
+        cfg_b = json.loads((b["folder"] / "exp_config.json").read_text())
+        assert cfg_a["seeds_together"] == 2 and cfg_b["seeds_together"] == 1
+        assert cfg_a["group"] == ["pair_s0", "pair_s1"]
+        pd.testing.assert_frame_equal(read_records(a["folder"]), read_records(b["folder"]))
+        pd.testing.assert_frame_equal(_metrics(a["folder"]), _metrics(b["folder"]))
+        cols = ["sur_time_cav", "sumo_time_cav", "surrogate_mape"]
+        pd.testing.assert_frame_equal(pd.read_csv(a["folder"] / "rounds.csv")[cols],
+                                      pd.read_csv(b["folder"] / "rounds.csv")[cols])
+    r0, r1 = (read_records(o["folder"]) for o in together)
+    assert not np.array_equal(r0[r0["day"] > H]["action"], r1[r1["day"] > H]["action"])  # seeds differ
+
+
+@pytest.mark.slow
+def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa: F811
+    """A 2-seed run killed in the middle of round 2's SUMO batch (executor calls: H human days,
+    1 calibration batch, then one batch per round), resumed by the second seed's id, ends with
+    both seeds' records and metrics equal to the uninterrupted run."""
+    with pytest.raises(KeyboardInterrupt):
+        _train(confs, tmp_path, "pair", FakeExecutor(fail_on_call=H + 3), seeds=[0, 1])
+    lead, other = tmp_path / "pair_s0", tmp_path / "pair_s1"
+    assert hybrid.latest_checkpoint(lead)[0] == 1  # the group checkpoint lives in the first folder
+    assert not (other / "checkpoints").exists()
+    meta = json.loads((lead / "checkpoints" / "round_00001" / "meta.json").read_text())
+    assert meta["seeds"] == [0, 1] and len(meta["record_parts"]) == 2
+    ex = FakeExecutor()
+    finals = resume_train("pair_s1", results_dir=str(tmp_path), progress=False, executor=ex)
+    assert [len(b) for b, _ in ex.batches] == [2 * P] * (ROUNDS - 1 + 10 // P)  # rounds 2-3, test
+    for final, ref in zip(finals, pair["outs"], strict=True):
+        assert final["folder"].name == ref["folder"].name
+        pd.testing.assert_frame_equal(read_records(final["folder"]), read_records(ref["folder"]))
+        pd.testing.assert_frame_equal(_metrics(final["folder"]), _metrics(ref["folder"]))
+
+
+@pytest.mark.slow
+def test_human_phase_reuse_equals_own_human_phase(pair, confs, tmp_path):  # noqa: F811
+    """Reusing pair_s0's human phase: no human or calibration day reaches the executor, and the
+    records and metrics equal pair_s0's (which simulated its own)."""
+    import shutil
+
+    src = pair["outs"][0]["folder"]
+    shutil.copytree(src, tmp_path / "src")
+    ex = FakeExecutor()
+    (out,) = _train(confs, tmp_path, "reused", ex, seeds=[0], human_phase_from="src")
+    assert all(cav is not None for _, cav in ex.batches)  # only CAV days (training and test) ran
+    assert len(ex.batches) == ROUNDS + 10 // P
+    pd.testing.assert_frame_equal(read_records(out["folder"]), read_records(src))
+    pd.testing.assert_frame_equal(_metrics(out["folder"]), _metrics(src))
+    assert json.loads((out["folder"] / "exp_config.json").read_text())["human_phase_from"] == "src"
+
+
+def test_human_phase_reuse_refuses_a_different_phase(confs, tmp_path):  # noqa: F811
+    src = tmp_path / "src"
+    src.mkdir()
+    (src / "exp_config.json").write_text(json.dumps({"network": "urb_grid", "env_seed": 7}))
+    with pytest.raises(UrbJaxError, match=r"env_seed \(source 7, this run 42\)"):
+        _train(confs, tmp_path, "bad", FakeExecutor(), human_phase_from="src")
+    with pytest.raises(UrbJaxError, match="not found"):
+        _train(confs, tmp_path, "bad2", FakeExecutor(), human_phase_from="nowhere")
