@@ -37,5 +37,6 @@ def bpr_travel_time_fn(scn: Scenario, window_h: float = 0.5, alpha: float = 0.15
 def make_env(scn: Scenario, cav_share: float = 0.4, behaviour: str = "selfish", seed: int = 42,
              **kwargs) -> RoutingEnv:
     """A RoutingEnv on the stand-in with URB's mutation share and a named CAV behaviour."""
-    return RoutingEnv(scn, draw_cavs(seed, scn.n_agents, cav_share), bpr_travel_time_fn(scn),
+    is_cav = draw_cavs(seed, scn.n_agents, cav_share, agent_id=scn.agent_id)
+    return RoutingEnv(scn, is_cav, bpr_travel_time_fn(scn),
                       reward_coefficients=behaviour_coefficients(behaviour), **kwargs)

@@ -31,7 +31,7 @@ def test_phases_days_and_mutation(grid_scenario):
     assert len(fake.calls) == 4 + 3 + 2 == out.days
     assert [r.phase for r in records] == [PHASE_HUMAN] * 4 + [PHASE_TRAIN] * 3 + [PHASE_TEST] * 2
     assert [r.day for r in records] == list(range(1, 10))
-    expected_cav = draw_cavs(7, scn.n_agents, 0.25)
+    expected_cav = draw_cavs(7, scn.n_agents, 0.25, agent_id=scn.agent_id)
     assert out.is_cav.sum() == int(scn.n_agents * 0.25)
     np.testing.assert_array_equal(out.is_cav, expected_cav)
     for (choices, is_cav), rec in zip(fake.calls, records, strict=True):

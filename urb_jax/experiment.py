@@ -131,7 +131,7 @@ def run_experiment(
     humans = train_humans(scenario, hp, H, env_seed=env_seed, simulate=simulate, sink=sink, sumo=sumo)
 
     # Mutation.
-    is_cav = draw_cavs(env_seed, n, task.ratio_machines)
+    is_cav = draw_cavs(env_seed, n, task.ratio_machines, agent_id=scenario.agent_id)
     cav_index = np.flatnonzero(is_cav)
     spec = make_observation_spec(env.observations, scenario.agent_od, scenario.agent_depart, k)
     depth = max(dependency_depth(scenario.agent_od, scenario.agent_depart, is_cav, env.observations), 1)

@@ -243,7 +243,7 @@ def train_group(
     n = scn.n_agents
     H, E = task.human_learning_episodes, task.test_eps
     hp = task.human_params()
-    is_cav = draw_cavs(env_seed, n, task.ratio_machines)
+    is_cav = draw_cavs(env_seed, n, task.ratio_machines, agent_id=scn.agent_id)
     cav_index = np.flatnonzero(is_cav)
     static = build_static(scn)
 

@@ -1,22 +1,49 @@
-"""Mutation: which humans become CAVs (URB_REFERENCE §5), drawn from the env seed."""
+"""Mutation: which humans become CAVs (URB_REFERENCE §5), drawn from the env seed.
+
+URB's draw is reproduced exactly, because which agents become CAVs decides t_CAV and the win rate
+more than any policy does (a 40% draw's own pre-mutation mean spans about ±0.15 min on St. Arnoult).
+RouteRL seeds Python's `random` with the env seed, draws one `random.uniform` per human for its
+beta (agents.csv order), then picks the CAVs with sequential `random.choice` + `remove` over the
+humans in agents.csv order. With env seed 42 this gives the CAVs whose pre-mutation mean matches
+the paper's AON t_CAV (St. Arnoult 3.048 vs 3.01, Provins 2.786 vs 2.76), which no other draw does.
+"""
 
 from __future__ import annotations
 
+import random
+
 import numpy as np
 
+METHODS = ("urb", "numpy")
 
-def draw_cavs(env_seed: int, n_agents: int, share: float) -> np.ndarray:
-    """[N] bool: int(N * share) agents, uniformly without replacement (positions in agent order).
 
-    URB draws with Python's `random` after the human beta draws, so the exact set differs from a
-    URB run with the same seed; the distribution is the same.
+def draw_cavs(env_seed: int, n_agents: int, share: float, agent_id: np.ndarray | None = None,
+              method: str = "urb") -> np.ndarray:
+    """[N] bool mask over agent positions: int(N * share) agents become CAVs.
+
+    `agent_id[i]` is the URB id of position i (agents.csv ids are their row numbers in every URB
+    network, so ascending id = agents.csv order); None means positions are already in csv order.
+    `method="numpy"` is the old independent uniform draw (same distribution, different set).
     """
-    if not 0.0 <= share <= 1.0:
-        from urb_jax.errors import ConfigError
+    from urb_jax.errors import ConfigError
 
+    if not 0.0 <= share <= 1.0:
         raise ConfigError(f"ratio_machines must be in [0, 1], got {share}")
+    if method not in METHODS:
+        raise ConfigError(f"CAV draw method {method!r}: use one of {METHODS}")
     n_cav = int(n_agents * share)
-    rng = np.random.default_rng([env_seed, 0x5EED])
     mask = np.zeros(n_agents, dtype=bool)
-    mask[rng.choice(n_agents, size=n_cav, replace=False)] = True
+    if method == "numpy":
+        rng = np.random.default_rng([env_seed, 0x5EED])
+        mask[rng.choice(n_agents, size=n_cav, replace=False)] = True
+        return mask
+    csv_order = np.arange(n_agents) if agent_id is None else np.argsort(np.asarray(agent_id), kind="stable")
+    rng_py = random.Random(env_seed)
+    for _ in range(n_agents):  # every human's beta: random.uniform consumes one random() each
+        rng_py.random()
+    pool = [int(p) for p in csv_order]
+    for _ in range(n_cav):
+        pick = rng_py.choice(pool)
+        pool.remove(pick)
+        mask[pick] = True
     return mask

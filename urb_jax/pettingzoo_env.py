@@ -53,8 +53,8 @@ class UrbAECEnv(AECEnv):
             humans = train_humans(scenario, self.hp, self.task.human_learning_episodes, env_seed=env_seed,
                                   simulate=simulate)
         self.humans = humans
-        self.is_cav = (draw_cavs(env_seed, n, self.task.ratio_machines) if is_cav is None
-                       else np.asarray(is_cav, dtype=bool))
+        self.is_cav = (draw_cavs(env_seed, n, self.task.ratio_machines, agent_id=scenario.agent_id)
+                       if is_cav is None else np.asarray(is_cav, dtype=bool))
         self.cav_index = np.flatnonzero(self.is_cav)  # departure order (the Scenario is sorted)
         self.possible_agents = [str(int(scenario.agent_id[i])) for i in self.cav_index]
         self._pos = dict(zip(self.possible_agents, range(len(self.possible_agents)), strict=True))

@@ -44,12 +44,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing results with this id")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--executor", choices=("pool", "ray"), default=None,
+                        help="where SUMO days run: pool (default; local processes) or ray (a Ray cluster, "
+                             "pip install 'urb-jax[ray]'); --resume uses the recorded one unless given")
+    parser.add_argument("--ray-address", default=None, help="Ray cluster: 'auto' or 'ray://host:port' "
+                        "(default: start a local Ray)")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.resume:
-        outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress)
+        outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
+                            executor_kind=args.executor, ray_address=args.ray_address)
     else:
         seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else [args.seed]
         outs = run_train(
@@ -57,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
             env_conf=args.env_conf, hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=seeds,
             exp_id=args.id, mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
             overwrite=args.overwrite, progress=not args.no_progress, train_days=args.train_days,
+            executor_kind=args.executor or "pool", ray_address=args.ray_address,
             human_phase_from=args.human_phase_from)
     for out in outs:
         m = out["metrics"]
@@ -89,9 +96,14 @@ def _setup(cfg: dict[str, Any]):
     return scn, task, task_path, env, env_path, hyb, hyb_path, alg_config
 
 
-def _executor(hyb: Any, log_dir: Path):
+def _executor(hyb: Any, log_dir: Path, kind: str = "pool", ray_address: str | None = None):
     from sumo_bridge import InProcessExecutor, SumoPool
 
+    if kind == "ray":
+        from sumo_bridge.ray_executor import RayExecutor
+
+        return RayExecutor(max(1, hyb.sumo_workers), log_dir=log_dir, day_timeout_s=hyb.day_timeout_s,
+                           address=ray_address)
     if hyb.sumo_workers <= 1:
         return InProcessExecutor(log_file=log_dir / "sumo.log")
     return SumoPool(hyb.sumo_workers, log_dir=log_dir, day_timeout_s=hyb.day_timeout_s)
@@ -103,7 +115,8 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
               seeds: list[int] | None = None, exp_id: str | None = None, mode: str = "hybrid",
               networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
               progress: bool = True, train_days: int | None = None, executor: Any = None,
-              stop_after_round: int | None = None, human_phase_from: str | None = None
+              stop_after_round: int | None = None, executor_kind: str = "pool",
+              ray_address: str | None = None, human_phase_from: str | None = None
               ) -> list[dict[str, Any]]:
     """Train every seed (sharing the human phase and the SUMO pool; groups of up to
     `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
@@ -118,7 +131,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     net = net or DEFAULT_NETWORK
     args = {"alg": alg, "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
             "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode, "networks_dir": networks_dir,
-            "train_days": train_days}
+            "train_days": train_days, "executor": executor_kind, "ray_address": ray_address}
     t0 = time.perf_counter()
     scn, task, task_path, env, env_path, hyb, hyb_path, alg_config = _setup(args)
     base = exp_id or f"{alg}_{mode}_{Path(net).name}_{task_path.stem}"
@@ -140,7 +153,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
         name = exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}"
         folders[s] = create_results_dir(results_dir, name, overwrite)
     own = executor is None
-    executor = executor or _executor(hyb, folders[seeds[0]])
+    executor = executor or _executor(hyb, folders[seeds[0]], executor_kind, ray_address)
     outs = []
     try:
         if human is None:
@@ -185,9 +198,11 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
 
 
 def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
-                 executor: Any = None) -> list[dict[str, Any]]:
+                 executor: Any = None, executor_kind: str | None = None,
+                 ray_address: str | None = None) -> list[dict[str, Any]]:
     """Continue results/<exp_id>/ (and the seeds trained together with it) from the group's newest
-    checkpoint, with the recorded arguments; one result per seed of the group."""
+    checkpoint, with the recorded arguments (and the recorded SUMO executor unless `executor_kind`
+    overrides it); one result per seed of the group."""
     folder = Path(results_dir) / exp_id
     config = json.loads((folder / "exp_config.json").read_text())
     folders = [Path(results_dir) / name for name in config.get("group", [exp_id])]
@@ -198,7 +213,8 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
     seeds = [c["train_args"]["seed"] for c in configs]
     scn, task, _, env, _, hyb, _, alg_config = _setup(args)
     own = executor is None
-    executor = executor or _executor(hyb, folders[0])
+    executor = executor or _executor(hyb, folders[0], executor_kind or args.get("executor", "pool"),
+                                     ray_address or args.get("ray_address"))
     t0 = time.perf_counter()
     try:
         summaries = _train(scn, task, env, hyb, args["alg"], alg_config, args["mode"], seeds,

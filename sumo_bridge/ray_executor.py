@@ -1,0 +1,323 @@
+"""SUMO days on a Ray cluster: the `DayExecutor` interface of `SumoPool`, with Ray actors as workers.
+
+Each actor is one process owning one libsumo simulation (libsumo allows one per process). Files
+travel through Ray's object store, so nodes need not share a filesystem: the network file's bytes
+(and those of `SumoConfig.additional_files`) are put once and written by each actor to its local
+/dev/shm; the route table is rebuilt from the Scenario's arrays as in `SumoPool`. Days are spread
+over the actors and come back in the order asked. An actor that dies, raises, or exceeds the
+per-day timeout is killed and replaced and its day retried once; a second failure raises
+`SumoDayError` naming the day, the seed and the actor's log. Ray is imported only here and only
+when a `RayExecutor` is built (install it with `pip install 'urb-jax[ray]'`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import glob
+import logging
+import os
+import shutil
+import signal
+import tempfile
+import time
+import traceback
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sumo_bridge.config import SumoConfig
+from sumo_bridge.pool import SumoDayError, _batch, log_tail
+from sumo_bridge.sim import Simulator, cav_mask, check_choices, scenario_key
+from sumo_bridge.types import DayResult
+from urb_jax.errors import UrbJaxError
+
+INSTALL_HINT = "pip install 'urb-jax[ray]'"
+
+
+def import_ray() -> Any:
+    """The `ray` module, or an error that says how to install it."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise UrbJaxError(f"--executor ray needs Ray, which is not installed ({exc}). Fix: {INSTALL_HINT}"
+                          ) from exc
+    return ray
+
+
+def _shm_base(config: SumoConfig) -> str:
+    return config.shm_dir if os.path.isdir(config.shm_dir) else tempfile.gettempdir()
+
+
+class SumoActor:
+    """Body of one Ray actor: a Simulator plus the scenarios and files shipped to it."""
+
+    def __init__(self, config: SumoConfig, log_path: str, extra_files: dict[str, bytes]) -> None:
+        with contextlib.suppress(ValueError):  # the driver handles Ctrl-C and kills us
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        self.files = Path(tempfile.mkdtemp(prefix=f"urbjax-ray-{os.getpid()}-", dir=_shm_base(config)))
+        try:  # same path as on the driver when the node shares it (local Ray), else a local temp file
+            Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        except OSError:
+            log_path = str(self.files / Path(log_path).name)
+            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        self.log_path = log_path
+        os.dup2(fd, 1)  # SUMO's messages (C-level stdout/stderr) go to this actor's log for good
+        os.dup2(fd, 2)
+        os.close(fd)
+        adds = []
+        for path in config.additional_files:  # shipped copies where the driver could read them
+            data = extra_files.get(path)
+            if data is None:
+                adds.append(path)
+                continue
+            local = self.files / f"add{len(adds)}-{Path(path).name}"
+            local.write_bytes(data)
+            adds.append(str(local))
+        self.sim = Simulator(dataclasses.replace(config, additional_files=tuple(adds)),
+                             console_warnings=True)
+        self.scenarios: dict[str, object] = {}
+
+    def ready(self) -> tuple[int, str, str]:
+        import ray
+
+        return os.getpid(), ray.util.get_node_ip_address(), self.log_path
+
+    def cleanup(self, pid: int, node: str) -> None:
+        """Remove the /dev/shm files a killed actor `pid` left, if it lived on this node."""
+        import ray
+
+        if node == ray.util.get_node_ip_address() and pid != os.getpid():
+            base = _shm_base(self.sim.config)
+            for d in (*glob.glob(f"{base}/urbjax-sumo-{pid}-*"), *glob.glob(f"{base}/urbjax-ray-{pid}-*")):
+                shutil.rmtree(d, ignore_errors=True)
+
+    def run_day(self, key: str, payload: tuple[object, str, bytes] | None, choices: np.ndarray, seed: int,
+                is_cav: np.ndarray | None, next_seed: int) -> tuple[str, Any]:
+        try:
+            if payload is not None:
+                scn, name, data = payload
+                net = self.files / key / name
+                net.parent.mkdir(exist_ok=True)
+                net.write_bytes(data)
+                self.scenarios[key] = dataclasses.replace(scn, net_file=str(net))  # type: ignore[type-var]
+            scn = self.scenarios[key]
+            return "ok", self.sim.run_day(scn, choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
+        except Exception:
+            return "err", f"{traceback.format_exc()}\n--- SUMO log tail ({self.log_path}) ---\n" \
+                          f"{log_tail(Path(self.log_path))}"
+
+    def close(self) -> None:
+        self.sim.close()
+        shutil.rmtree(self.files, ignore_errors=True)
+
+
+@dataclasses.dataclass
+class _Slot:
+    """One actor as the driver sees it."""
+
+    index: int
+    actor: Any
+    pid: int = 0
+    node: str = ""
+    log_path: str = ""
+    scenarios: set[str] = dataclasses.field(default_factory=set)
+    task: int | None = None
+    ref: Any = None
+    started: float = 0.0
+
+
+class RayExecutor:
+    """`n_actors` Ray actors running SUMO days; `address` None starts a local Ray, else connects.
+
+    `address`: None = a new local Ray with `num_cpus or n_actors` CPUs (shut down again by
+    `close()`), "auto" = the running cluster this machine belongs to, "ray://host:port" = a remote
+    cluster through Ray Client. If Ray is already initialised in this process it is used as is and
+    left running. Each actor reserves `actor_cpus` of Ray's logical CPUs (one: a day is one core).
+    urb-jax must be importable on every node (installed there, or shipped with
+    `runtime_env={"py_modules": [...]}`); data files need not be shared.
+    """
+
+    def __init__(self, n_actors: int = 2, config: SumoConfig | None = None,
+                 log_dir: str | os.PathLike | None = None, day_timeout_s: float = 600.0,
+                 start_timeout_s: float = 300.0, address: str | None = None, num_cpus: int | None = None,
+                 runtime_env: dict | None = None, actor_cpus: float = 1.0) -> None:
+        if n_actors < 1:
+            raise ValueError("RayExecutor needs n_actors >= 1")
+        ray = import_ray()
+        self._ray = ray
+        self.config = config or SumoConfig()
+        self.day_timeout_s = float(day_timeout_s)
+        self.start_timeout_s = float(start_timeout_s)
+        self._tmp = None if log_dir else tempfile.TemporaryDirectory(prefix="urbjax-ray-logs-")
+        self.log_dir = Path(log_dir) if log_dir else Path(self._tmp.name)  # type: ignore[union-attr]
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.owns_ray = not ray.is_initialized()
+        if self.owns_ray:
+            if address is None:
+                # "local": a new instance even if RAY_ADDRESS or a `ray start` cluster exists
+                ray.init(address="local", num_cpus=num_cpus or n_actors, include_dashboard=False,
+                         runtime_env=runtime_env, logging_level=logging.WARNING)
+            else:
+                ray.init(address=address, runtime_env=runtime_env)
+        extra = {}
+        for path in self.config.additional_files:
+            with contextlib.suppress(OSError):  # unreadable here: the actor tries the path itself
+                extra[path] = Path(path).read_bytes()
+        self._extra = ray.put(extra)
+        self._cls = ray.remote(num_cpus=actor_cpus, max_restarts=0, max_task_retries=0)(SumoActor)
+        self._payloads: dict[str, Any] = {}
+        self.restarts = 0
+        self.slots: list[_Slot] = []
+        try:
+            self.slots = [self._new(i) for i in range(n_actors)]
+            for s in self.slots:
+                self._wait_ready(s)
+        except BaseException:
+            self.close()
+            raise
+
+    # --- actors -------------------------------------------------------------------------
+    def _new(self, index: int) -> _Slot:
+        log = str(self.log_dir / f"sumo_actor{index}.log")
+        return _Slot(index, self._cls.remote(self.config, log, self._extra), log_path=log)
+
+    def _wait_ready(self, s: _Slot) -> None:
+        ray = self._ray
+        try:
+            s.pid, s.node, s.log_path = ray.get(s.actor.ready.remote(), timeout=self.start_timeout_s)
+        except ray.exceptions.GetTimeoutError as exc:
+            raise SumoDayError(f"Ray SUMO actor {s.index} did not start within {self.start_timeout_s:.0f} s "
+                               "(not enough free CPUs in the cluster?); log "
+                               f"{s.log_path}:\n{log_tail(Path(s.log_path))}") from exc
+        except ray.exceptions.RayError as exc:
+            raise SumoDayError(f"Ray SUMO actor {s.index} failed to start: {exc}; log {s.log_path}:\n"
+                               f"{log_tail(Path(s.log_path))}") from exc
+
+    def _restart(self, s: _Slot) -> _Slot:
+        with contextlib.suppress(Exception):
+            self._ray.kill(s.actor, no_restart=True)
+        self.restarts += 1
+        ns = self._new(s.index)
+        self._wait_ready(ns)
+        ns.actor.cleanup.remote(s.pid, s.node)  # the dead actor's /dev/shm files, if on the same node
+        self.slots[s.index] = ns
+        return ns
+
+    def _where(self, s: _Slot) -> str:
+        return f"{s.log_path} on node {s.node}" if s.node else s.log_path
+
+    def busy_pids(self) -> list[int]:
+        """Process ids of actors running a day now (for fault-injection tests)."""
+        return [s.pid for s in self.slots if s.task is not None]
+
+    # --- days ---------------------------------------------------------------------------
+    def _payload(self, scenario: object, key: str) -> Any:
+        if key not in self._payloads:
+            net = Path(scenario.net_file)  # type: ignore[attr-defined]
+            self._payloads[key] = self._ray.put((scenario, net.name, net.read_bytes()))
+        return self._payloads[key]
+
+    def run_days(self, scenario: object, choices: np.ndarray, seeds: list[int] | np.ndarray,
+                 is_cav: np.ndarray | None = None) -> list[DayResult]:
+        ray = self._ray
+        choices, seeds, cavs = _batch(scenario, choices, seeds, is_cav)
+        for c, m in zip(choices, cavs, strict=True):  # bad input fails here, not twice on an actor
+            check_choices(scenario, c)
+            cav_mask(scenario, m)
+        key = scenario_key(scenario)
+        payload = self._payload(scenario, key) if len(seeds) else None
+        todo = deque(range(len(seeds)))
+        results: list[DayResult | None] = [None] * len(seeds)
+        failures: dict[int, list[str]] = {}
+
+        def fail(s: _Slot, reason: str, tail: str | None = None) -> None:
+            tid = s.task
+            assert tid is not None
+            s.task, s.ref = None, None
+            if tail is None:
+                tail = f"--- SUMO log tail ({self._where(s)}) ---\n{log_tail(Path(s.log_path))}"
+            failures.setdefault(tid, []).append(f"{reason}\n{tail}")
+            self._restart(s)
+            if len(failures[tid]) >= 2:
+                for other in self.slots:  # abandon in-flight days, keep the executor usable
+                    if other.task is not None:
+                        other.task = None
+                        self._restart(other)
+                raise SumoDayError(
+                    f"SUMO day {tid} (seed {seeds[tid]}) of network {getattr(scenario, 'name', '?')} "
+                    "failed twice on Ray.\n"
+                    + "\n".join(f"attempt {i + 1}: {f}" for i, f in enumerate(failures[tid]))
+                )
+            todo.appendleft(tid)
+
+        try:
+            while todo or any(s.task is not None for s in self.slots):
+                for s in self.slots:
+                    if s.task is None and todo:
+                        tid = todo.popleft()
+                        ahead = tid + len(self.slots)  # likely this actor's next day: pre-load it
+                        nxt = seeds[ahead] if ahead < len(seeds) else seeds[tid]
+                        send = None if key in s.scenarios else payload
+                        s.ref = s.actor.run_day.remote(key, send, choices[tid], seeds[tid], cavs[tid], nxt)
+                        s.task, s.started = tid, time.monotonic()
+                        s.scenarios.add(key)
+                busy = [s for s in self.slots if s.task is not None]
+                timeout = max(0.0, min(s.started + self.day_timeout_s - time.monotonic() for s in busy))
+                done, _ = ray.wait([s.ref for s in busy], num_returns=1, timeout=timeout)
+                finished = set(done)
+                for s in busy:
+                    if s.ref in finished:
+                        try:
+                            kind, out = ray.get(s.ref)
+                        except ray.exceptions.RayActorError as exc:
+                            fail(s, f"actor {s.index} (pid {s.pid}) died: {_first_line(exc)}")
+                            continue
+                        except ray.exceptions.RayError as exc:
+                            fail(s, f"actor {s.index} (pid {s.pid}) failed: {_first_line(exc)}")
+                            continue
+                        if kind == "ok":
+                            results[s.task] = out  # type: ignore[index]
+                            s.task, s.ref = None, None
+                        else:
+                            fail(s, f"actor {s.index} (pid {s.pid}) raised:", out)
+                    elif time.monotonic() - s.started > self.day_timeout_s:
+                        fail(s, f"actor {s.index} (pid {s.pid}) exceeded the {self.day_timeout_s:g} s "
+                                "day limit")
+        except BaseException:
+            for s in self.slots:
+                if s.task is not None:
+                    s.task = None
+                    self._restart(s)
+            raise
+        return results  # type: ignore[return-value]
+
+    def close(self) -> None:
+        ray = self._ray
+        for s in self.slots:
+            with contextlib.suppress(Exception):
+                ray.get(s.actor.close.remote(), timeout=10)
+            with contextlib.suppress(Exception):
+                ray.kill(s.actor, no_restart=True)
+        self.slots = []
+        self._payloads = {}
+        if self.owns_ray and ray.is_initialized():
+            ray.shutdown()
+        self.owns_ray = False
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def __enter__(self) -> RayExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = [ln for ln in str(exc).splitlines() if ln.strip()]
+    return " ".join(lines[:3])[:500] if lines else type(exc).__name__
