@@ -17,7 +17,7 @@ import numpy as np
 import optax
 
 from sumo_bridge.types import ARRIVED, DayResult
-from surrogate.model import Static, SurrogateConfig, build_static, init_params, predict
+from surrogate.model import Static, SurrogateConfig, build_static, init_params, predict, predict_jit
 from urb_jax.scenario import Scenario
 
 Params = dict[str, jax.Array]
@@ -93,6 +93,30 @@ def fit_params(params: Params, static: Static, sample: SumoSample, fit: FitConfi
     anchor = jax.tree.map(jnp.asarray, params)
     p, _ = _run_fit(anchor, static, data, fit)
     return p
+
+
+def without_bias(params: Params) -> Params:
+    """The smooth model's parameters (the per-route residual is not fitted by gradient)."""
+    return {k: v for k, v in params.items() if k != "route_bias"}
+
+
+def route_bias(params: Params, static: Static, sample: SumoSample, prior_days: float) -> jax.Array:
+    """[N, K] minutes: each (agent, route)'s mean SUMO residual over the days it was driven,
+    shrunk toward 0 as `count / (count + prior_days)`.
+
+    The smooth model cannot represent every queue SUMO forms; a policy trained on it keeps
+    choosing routes whose SUMO time it underestimates. Correcting exactly the (agent, route)
+    pairs SUMO has measured makes those routes look as they drove, while unseen routes keep the
+    model's estimate (so the policy still tries them, and the next SUMO days measure them)."""
+    pred = np.asarray(predict_jit(without_bias(params), static, jnp.asarray(sample.choices, jnp.int32)))
+    res = np.where(sample.arrived, sample.travel_time - pred, 0.0)
+    n, k = static.n, static.k
+    sums = np.zeros((n, k))
+    counts = np.zeros((n, k))
+    agents = np.broadcast_to(np.arange(n), sample.choices.shape)
+    np.add.at(sums, (agents, sample.choices), res)
+    np.add.at(counts, (agents, sample.choices), sample.arrived)
+    return jnp.asarray(sums / (counts + prior_days), jnp.float32)
 
 
 @partial(jax.jit, static_argnames="fit")

@@ -242,6 +242,7 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
     single = choices.ndim == (2 if is_prob else 1)
     if single:
         choices = choices[None]
+    given = choices
     B = choices.shape[0]
     base, a = edge_terms(params, static)
     base_c, a_c = base[static.cell_edge], a[static.cell_edge]
@@ -262,6 +263,12 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
     ins = jnp.exp(params["log_ins"]) * static.origin_load[:, None]
     sec = sec * jnp.exp(params["log_agent"])[:, None] + ins + params["intercept"]
     out = sec.T / 60.0
+    if "route_bias" in params:  # [N, K] minutes: SUMO's residual on routes it has seen (route_bias())
+        bias = params["route_bias"]
+        if is_prob:
+            out = out + (given * bias[None]).sum(-1)
+        else:
+            out = out + jnp.take_along_axis(bias[None], given.astype(jnp.int32)[..., None], axis=-1)[..., 0]
     return out[0] if single else out
 
 

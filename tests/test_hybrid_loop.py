@@ -47,10 +47,12 @@ def confs(tmp_path_factory):
     d = tmp_path_factory.mktemp("confs")
     hyb = {"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
            "sumo_updates": 1, "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2,
-           "calib_steps": 20, "refit_days": 4, "refit_steps": 5}
+           "calib_steps": 20, "refit_days": 4, "refit_steps": 5,
+           "reuse_identical_test_days": False}  # every test day reaches the executor (provenance test)
     alg = {"agent_frames_per_batch": 2, "n_iters": 10, "num_epochs": 1, "minibatch_size": 64,
            "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400}
     (d / "hyb.json").write_text(json.dumps(hyb))
+    (d / "hyb_reuse.json").write_text(json.dumps({**hyb, "reuse_identical_test_days": True}))
     (d / "iql.json").write_text(json.dumps(alg))
     return {"hybrid_conf": str(d / "hyb.json"), "alg_conf": str(d / "iql.json"), "task_conf": "test"}
 
@@ -95,6 +97,23 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     assert out["metrics"]["t_CAV"] == pytest.approx(np.mean(test_times), rel=1e-5)
     assert np.isfinite(out["metrics"]["t_pre"]) and np.isfinite(out["metrics"]["t_train"])
     assert (folder / "plots" / "surrogate_error.png").is_file()
+
+
+def test_identical_test_days_run_once_with_the_same_metrics(confs, tmp_path):
+    """Greedy CAVs + frozen deterministic humans repeat one joint action every test day: with
+    reuse on, SUMO runs each distinct test day once and the records and metrics are unchanged."""
+    plain_ex, reuse_ex = FakeExecutor(), FakeExecutor()
+    (plain,) = _train(confs, tmp_path, "plain", executor=plain_ex)
+    (reuse,) = _train({**confs, "hybrid_conf": confs["hybrid_conf"].replace("hyb.json", "hyb_reuse.json")},
+                      tmp_path, "reuse", executor=reuse_ex)
+    n_plain = sum(len(b) for b, _ in plain_ex.batches)
+    n_reuse = sum(len(b) for b, _ in reuse_ex.batches)
+    test_days = len(read_records(plain["folder"]).query("phase == 'test'")["day"].unique())
+    distinct = np.unique(np.concatenate([b for b, _ in plain_ex.batches])[-test_days:], axis=0).shape[0]
+    assert n_reuse == n_plain - test_days + distinct < n_plain
+    pd.testing.assert_frame_equal(read_records(plain["folder"]), read_records(reuse["folder"]))
+    for key, value in plain["metrics"].items():
+        assert reuse["metrics"][key] == pytest.approx(value, nan_ok=True)
 
 
 @pytest.mark.parametrize("mode", ["sumo", "surrogate"])

@@ -201,7 +201,8 @@ def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypat
     for exp in ("a", "b"):  # a killed run recorded with --executor ray --ray-address ...
         (tmp_path / exp).mkdir()
         (tmp_path / exp / "exp_config.json").write_text(json.dumps(
-            {"status": "running", "train_args": {"executor": "ray", "ray_address": "ray://head:10001", "seed": 0}}))
+            {"status": "running",
+             "train_args": {"executor": "ray", "ray_address": "ray://head:10001", "seed": 0}}))
     asked = []
 
     class StopError(Exception):

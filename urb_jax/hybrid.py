@@ -75,6 +75,9 @@ class HybridConfig:
     refit_steps: int = 150
     day_timeout_s: float = 600.0
     max_vmapped_seeds: int = 8  # seeds trained together under vmap; longer seed lists train in groups
+    route_bias: bool = True  # correct the surrogate by SUMO's mean residual per (agent, route) driven
+    route_bias_prior_days: float = 2.0  # shrinkage: residual x count / (count + prior days)
+    reuse_identical_test_days: bool = True  # SUMO is deterministic: a repeated test day runs once
 
 
 def load_hybrid_config(name: str = "default") -> tuple[HybridConfig, Path]:
@@ -232,8 +235,9 @@ def train_group(
     surrogate parameters [S]); each round's S x P SUMO days go to the executor in one batch, and
     the test days likewise. Each seed refits its own surrogate on its own SUMO days (a loop over
     seeds outside the jitted training). `stop_after_round` simulates a kill (tests)."""
+    from sumo_bridge.memo import MemoExecutor
     from surrogate import SumoSample, build_static, init_params, predict
-    from surrogate.calibrate import REFIT, FitConfig, fit_params
+    from surrogate.calibrate import REFIT, FitConfig, fit_params, route_bias, without_bias
     from urb_jax.mutation import draw_cavs
     from urb_jax.results import RecordsWriter
 
@@ -252,7 +256,14 @@ def train_group(
 
     common = dict(human_params=hp, reward_coefficients=task.reward_coefficients,
                   observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt)
-    p0 = init_params(static)
+    p0 = {**init_params(static), "route_bias": jnp.zeros((n, scn.k), jnp.float32)}
+
+    def fit(start: Any, sub: SumoSample, fit_cfg: Any, full: SumoSample) -> Any:
+        """Gradient fit of the smooth model on `sub`, then the per-route residual on all SUMO days."""
+        fitted = fit_params(without_bias(start), static, sub, fit_cfg)
+        bias = (route_bias(fitted, static, full, cfg.route_bias_prior_days) if cfg.route_bias
+                else jnp.zeros_like(p0["route_bias"]))
+        return {**fitted, "route_bias": bias}
     humans0 = human.humans if human is not None else None
     # Placeholder human knowledge for a resume (shapes only; the checkpoint overwrites it).
     if humans0 is None:
@@ -322,7 +333,7 @@ def train_group(
                 writer.add(rec)
         sample0 = SumoSample(human.calib_choices, human.calib_times, human.calib_arrived)
         if mode != "sumo" and len(sample0):
-            fitted = fit_params(p0, static, sample0, FitConfig(steps=cfg.calib_steps))
+            fitted = fit(p0, sample0, FitConfig(steps=cfg.calib_steps), sample0)
             state["params"] = _stack([fitted] * S)  # the same calibration for every seed
         state["real"] = state["real"]._replace(
             humans=jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (S, P, *x.shape)), human.humans))
@@ -389,7 +400,7 @@ def train_group(
                     rng = np.random.default_rng([seed, r, 0xF17])
                     pick = rng.choice(len(sample), size=cfg.refit_days, replace=len(sample) < cfg.refit_days)
                     sub = SumoSample(sample.choices[pick], sample.travel_time[pick], sample.arrived[pick])
-                    new_params.append(fit_params(_take(params, i), static, sub, refit_cfg))
+                    new_params.append(fit(_take(params, i), sub, refit_cfg, sample))
             sumo_done += P
             if mode == "hybrid":
                 params = _stack(new_params)
@@ -416,12 +427,13 @@ def train_group(
             return [{"stopped": r + 1} for _ in seeds]
 
     # ---- test: frozen greedy policies, SUMO only; S x b days per executor batch
+    test_executor = MemoExecutor(executor) if cfg.reuse_identical_test_days else executor
     for start_day in range(0, E, P):
         b = min(P, E - start_day)
         kt = jax.vmap(lambda k, d=start_day: jax.random.split(jax.random.fold_in(k, d)))(k_test)
         obs, actions, choices = act_greedy(runner, split_p(kt[:, 0]), real)
         choices = np.asarray(choices)[:, :b]  # [S, b, N]
-        results = executor.run_days(scn, choices.reshape(S * b, n), [env_seed] * (S * b), is_cav=is_cav)
+        results = test_executor.run_days(scn, choices.reshape(S * b, n), [env_seed] * (S * b), is_cav=is_cav)
         times = np.zeros((S, P, n), np.float32)
         times[:, :b] = np.stack([res.travel_time for res in results]).reshape(S, b, n)
         times[:, b:] = times[:, :1]
