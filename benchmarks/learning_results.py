@@ -107,6 +107,7 @@ def main() -> None:
     parser.add_argument("--num-envs", nargs="*", default=[], metavar="ALG=B",
                         help="train ALG with B parallel environments (default: the config's num_envs)")
     parser.add_argument("--standin", action="store_true", help="BPR stand-in instead of the surrogate")
+    parser.add_argument("--skip", nargs="*", default=[], help="NETWORK:ALG:CONFIG runs to leave out")
     parser.add_argument("--human-days", type=int, default=200)
     parser.add_argument("--test-days", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
@@ -135,6 +136,9 @@ def main() -> None:
               f"{t_pre:.3f} min; random {base['random']:.3f}, AON {base['aon']:.3f}", flush=True)
         for alg in args.algs:
             for conf in args.config:
+                if f"{net}:{alg}:{conf}" in args.skip:
+                    print(f"  {alg:10s} {conf:8s} skipped", flush=True)
+                    continue
                 row, curve = train_one(alg, conf, envs[BEHAVIOUR.get(alg, "selfish")], args, num_envs, key)
                 rows.append(row | {"network": net})
                 curves[(net, f"{alg} {row['config']}")] = curve
