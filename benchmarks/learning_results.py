@@ -171,19 +171,23 @@ def plot(curves: dict, networks: list[str], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(networks), figsize=(6 * len(networks), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(networks), figsize=(7 * len(networks), 4.5), squeeze=False)
+    colours = {alg: f"C{i}" for i, alg in enumerate(MODULES)}
     for ax, net in zip(axes[0], networks, strict=True):
-        for (n, alg), value in curves.items():
-            if n != net or alg == "_base":
+        for (n, label), value in curves.items():
+            if n != net or label == "_base":
                 continue
             x, y = value
-            ax.plot(x, y, label=alg, lw=1)
+            alg, conf = label.split(" ", 1)  # colour per algorithm, dashed for non-URB configs
+            style = "-" if conf.startswith("config") else "--"
+            ax.plot(x, y, label=label, lw=1, color=colours.get(alg), ls=style)
         base = curves.get((net, "_base"), {})
         for name, style in (("random", ":"), ("aon", "--")):
             if name in base:
                 ax.axhline(base[name], color="k", ls=style, lw=1, label=name)
         ax.set_title(f"{net} (training, exploring policies)")
-        ax.set_xlabel("training days (all environments)")
+        ax.set_xscale("log")
+        ax.set_xlabel("training days (all environments, log scale)")
         ax.set_ylabel("mean CAV travel time (min)")
         ax.legend(fontsize=7)
     fig.tight_layout()
