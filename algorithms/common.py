@@ -51,6 +51,10 @@ class TorchRLCommon:
     shared_parameters: bool = True  # URB: shared; False = one network per CAV (leading axis)
     normalize_obs: bool = True  # URB feeds raw seconds; we scale (see obs_scale)
     num_envs: int = 1
+    # 0 = URB's update count (frames // minibatch_size steps per epoch, B times as many with B envs);
+    # > 0 = PureJaxRL: this many Adam steps per epoch, each on 1/num_minibatches of the iteration's
+    # days (minibatches grow with B instead of the step count). See update_plan.
+    num_minibatches: int = 0
 
 
 @dataclass(frozen=True)
@@ -85,6 +89,7 @@ class MixerConfig(TorchRLCommon):
     eps_end: float = 0.1
     exploration_fraction: float = 0.6
     mixing_embed_dim: int = 192  # QMIX only
+    hypernet_hidden: int = 0  # QMIX only: 0 = URB's single linear hypernetwork; > 0 = pymarl's two layers
 
 
 @dataclass(frozen=True)
@@ -465,6 +470,23 @@ def minibatch_days(minibatch_size: int, n_cavs: int) -> int:
 def n_updates(num_epochs: int, days_collected: int, n_cavs: int, minibatch_size: int) -> int:
     """URB's Adam steps per iteration: num_epochs * floor(frames / minibatch), at least num_epochs."""
     return num_epochs * max(1, days_collected * n_cavs // max(minibatch_size, 1))
+
+
+def update_plan(num_minibatches: int, minibatch_size: int, days: int, n_cavs: int,
+                capacity_days: int | None = None) -> tuple[int, int]:
+    """(Adam steps per epoch, whole days per minibatch) for an update on `days` collected days.
+
+    num_minibatches == 0 (URB): `max(1, days * C // minibatch_size)` steps of
+    `max(1, minibatch_size // C)` days, so B environments mean B times as many steps.
+    num_minibatches > 0 (PureJaxRL): `num_minibatches` steps of `days // num_minibatches` days (at
+    least 1; at most `capacity_days`, a replay buffer's size), so the step count is independent of B
+    and the minibatch grows with it. Every epoch repeats the plan (num_epochs x steps in all)."""
+    if num_minibatches <= 0:
+        return n_updates(1, days, n_cavs, minibatch_size), minibatch_days(minibatch_size, n_cavs)
+    mb = max(1, days // num_minibatches)
+    if capacity_days is not None:
+        mb = min(mb, capacity_days)
+    return num_minibatches, mb
 
 
 def flatten_days(tree: Any) -> Any:

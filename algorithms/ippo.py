@@ -6,7 +6,8 @@ Critic: ReLU MLP on the CAV's own observation (+ OD embedding). Per iteration: c
 day does not bootstrap: URB's one-day episodes make advantage = reward - V(obs)), then
 `num_epochs` epochs over shuffled minibatches of whole days with the clipped PPO objective,
 entropy bonus `entropy_eps`, smooth-L1 critic loss (TorchRL default, coefficient `critic_coef`)
-and optional advantage normalisation; one Adam (grad-norm clip) on both.
+and optional advantage normalisation; one Adam (grad-norm clip) on both. `num_minibatches` > 0
+splits each epoch into that many minibatches (PureJaxRL) instead of URB's fixed-size ones.
 
 Advantage normalisation is over the whole iteration's batch, not per minibatch as TorchRL does:
 with a cooperative reward and a broadcast centralised value every CAV of a day has the same
@@ -142,8 +143,12 @@ def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) 
         """On-policy: `days` must have been played by `policy(runner, True)`."""
         t, b = days_shape(days)
         total = t * b
-        mb_days = min(minibatch_days(config.minibatch_size, env.n_cavs), total)
-        n_minibatches = max(1, total // mb_days)
+        if config.num_minibatches > 0:  # PureJaxRL: a fixed count of minibatches that grow with B
+            n_minibatches = min(config.num_minibatches, total)
+            mb_days = total // n_minibatches
+        else:  # URB: minibatches of minibatch_size samples, B times as many with B envs
+            mb_days = min(minibatch_days(config.minibatch_size, env.n_cavs), total)
+            n_minibatches = max(1, total // mb_days)
         params = runner.params
         logits = masked(actor.apply(params["actor"], days.obs), mask)
         log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), days.action[..., None], -1)[..., 0]

@@ -7,6 +7,7 @@ training days), append the days to a ring replay buffer, then `num_epochs` epoch
 y = r + gamma * (1 - done) * max_a' Q_target(s', a') with the CAV's own reward; the target is
 mixed `target <- eps * target + (1 - eps) * online` once per epoch (URB key `eps`, `tau` unused).
 URB's episodes are one day (done every day), so y = r: a contextual bandit per day.
+`num_minibatches > 0` replaces URB's step count by a fixed one (common.update_plan).
 """
 
 from __future__ import annotations
@@ -34,12 +35,11 @@ from algorithms.common import (
     linear_schedule,
     make_agent_net,
     masked,
-    minibatch_days,
-    n_updates,
     polyak,
     reset_envs,
     scan_train,
     select_tree,
+    update_plan,
 )
 from urb_jax.env import EnvState, RoutingEnv
 
@@ -81,8 +81,8 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
     policy_for = make_policy(config, env)
     mask = jnp.asarray(env.action_mask)
     n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.agent_frames_per_batch
-    mb_days = minibatch_days(config.minibatch_size, n_cav)
-    capacity = max(config.memory_size // max(n_cav, 1), mb_days)  # memory_size frames, stored as days
+    _, mb_iter = update_plan(config.num_minibatches, config.minibatch_size, n_days * n_envs, n_cav)
+    capacity = max(config.memory_size // max(n_cav, 1), mb_iter)  # memory_size frames, stored as days
     total_days = n_days * config.n_iters
     eps_at = linear_schedule(config.eps_init, config.eps_end, config.exploration_fraction * total_days)
     tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
@@ -105,7 +105,8 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
 
     def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
         t, b = days_shape(days)
-        steps_per_epoch = n_updates(1, t * b, n_cav, config.minibatch_size)
+        steps_per_epoch, mb_days = update_plan(config.num_minibatches, config.minibatch_size, t * b, n_cav,
+                                               capacity)
         buffer = buffer_add(runner.buffer, flatten_days(days))
 
         def epoch(carry, k):

@@ -3,7 +3,8 @@ mixed by a monotonic hypernetwork into Q_tot, trained on the team reward (mean C
 
 Mixer (Rashid et al. 2018, TorchRL's QMixer): from the global state s (every CAV's scaled
 observation, flattened), W1 = |Hyper_w1(s)| [C, E], b1 = Hyper_b1(s), h = elu(q W1 + b1),
-w2 = |Hyper_w2(s)| [E], V(s) = two-layer hypernet; Q_tot = h . w2 + V(s). Non-negative weights
+w2 = |Hyper_w2(s)| [E], V(s) = two-layer hypernet; Q_tot = h . w2 + V(s). Hyper_w1/w2 are one
+linear layer (URB) or, with `hypernet_hidden` > 0, two layers with a ReLU (pymarl). Non-negative weights
 make dQ_tot/dq_i >= 0, so per-CAV argmax is the joint argmax. `mixer="vdn"` is VDN (sum).
 
 Replay of whole days (memory_size frames = memory_size // C days); TD(0) target
@@ -37,29 +38,38 @@ from algorithms.common import (
     linear_schedule,
     make_agent_net,
     masked,
-    minibatch_days,
-    n_updates,
     obs_scale,
     polyak,
     reset_envs,
     scan_train,
     select_tree,
+    update_plan,
 )
 from urb_jax.env import EnvState, RoutingEnv
 
 
 class QMixer(nn.Module):
+    """hypernet_hidden = 0: URB's (TorchRL) single linear layer state -> C x E weights (S*C*E
+    parameters: 7.4 M on saint_arnoult); > 0: pymarl's state -> hidden (ReLU) -> weights for W1 and
+    w2, S*H + H*C*E parameters."""
+
     n_agents: int
     embed_dim: int
+    hypernet_hidden: int = 0
+
+    def hyper(self, name: str, out: int, state: jnp.ndarray) -> jnp.ndarray:
+        if self.hypernet_hidden <= 0:
+            return nn.Dense(out, name=name)(state)
+        return nn.Dense(out, name=name)(nn.relu(nn.Dense(self.hypernet_hidden, name=f"{name}_hidden")(state)))
 
     @nn.compact
     def __call__(self, q: jnp.ndarray, state: jnp.ndarray) -> jnp.ndarray:
         """q [..., C] chosen-action values, state [..., S] -> Q_tot [...]."""
         e = self.embed_dim
-        w1 = jnp.abs(nn.Dense(self.n_agents * e, name="hyper_w1")(state)).reshape(*q.shape, e)
+        w1 = jnp.abs(self.hyper("hyper_w1", self.n_agents * e, state)).reshape(*q.shape, e)
         b1 = nn.Dense(e, name="hyper_b1")(state)
         hidden = nn.elu(jnp.einsum("...c,...ce->...e", q, w1) + b1)
-        w2 = jnp.abs(nn.Dense(e, name="hyper_w2")(state))
+        w2 = jnp.abs(self.hyper("hyper_w2", e, state))
         v = nn.Dense(1, name="hyper_v2")(nn.relu(nn.Dense(e, name="hyper_v1")(state)))[..., 0]
         return (hidden * w2).sum(-1) + v
 
@@ -80,7 +90,9 @@ class RunnerState(NamedTuple):
 
 
 def make_mixer(config: MixerConfig, env: RoutingEnv, mixer: str) -> nn.Module:
-    return QMixer(env.n_cavs, config.mixing_embed_dim) if mixer == "qmix" else VDNMixer()
+    if mixer == "qmix":
+        return QMixer(env.n_cavs, config.mixing_embed_dim, config.hypernet_hidden)
+    return VDNMixer()
 
 
 def mixed_td_loss(q_apply, mix_apply, params: Any, target: Any, batch: Day, mask: jnp.ndarray,
@@ -118,8 +130,8 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
     mask = jnp.asarray(env.action_mask)
     scale = jnp.asarray(obs_scale(env)) if config.normalize_obs else 1.0
     n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.agent_frames_per_batch
-    mb_days = minibatch_days(config.minibatch_size, n_cav)
-    capacity = max(config.memory_size // max(n_cav, 1), mb_days)
+    _, mb_iter = update_plan(config.num_minibatches, config.minibatch_size, n_days * n_envs, n_cav)
+    capacity = max(config.memory_size // max(n_cav, 1), mb_iter)
     eps_at = linear_schedule(config.eps_init, config.eps_end,
                              config.exploration_fraction * n_days * config.n_iters)
     tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
@@ -145,7 +157,9 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
 
     def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
         t, b = days_shape(days)
-        n_steps = n_updates(config.num_epochs, t * b, n_cav, config.minibatch_size)
+        steps_per_epoch, mb_days = update_plan(config.num_minibatches, config.minibatch_size, t * b, n_cav,
+                                               capacity)
+        n_steps = config.num_epochs * steps_per_epoch
         buffer = buffer_add(runner.buffer, flatten_days(days))
 
         def sgd_step(carry, k):

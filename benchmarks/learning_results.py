@@ -1,13 +1,14 @@
 """Learning results: each algorithm's CAVs (40%) vs the random and AON baselines.
 
 Protocol (URB scenario 1, shortened): humans learn alone for `--human-days` days (Gawron, on the
-travel-time model), 40% of them become CAVs (mutation from the env seed) and keep the humans'
+travel-time model: the surrogate calibrated on 40 cached SUMO days, or `--standin` for the BPR
+stand-in), 40% of them become CAVs (mutation from the env seed) and keep the humans'
 learned knowledge frozen; each algorithm trains with URB's config (selfish reward for IQL, IPPO,
 IQL*, IPPO*; cooperative for MAPPO, QMIX, VDN) for the config's training days, then its test
 policy (greedy / argmax) is evaluated for `--test-days` days. Baselines use the same frozen
 humans. Prints final mean CAV travel times (minutes) and saves learning curves.
 
-    python benchmarks/learning_results.py --out results/algorithms
+    python benchmarks/learning_results.py --out results/algorithms --config config1 fast
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from real_surrogate import surrogate_travel_fn
 from standin import bpr_travel_time_fn
 
 from algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
@@ -75,14 +77,37 @@ def training_days(alg: str, config) -> np.ndarray:
     return per * (np.arange(n) + 1)
 
 
+def train_one(alg: str, conf: str, env, args, num_envs: dict[str, int], key: jax.Array):
+    """Train one algorithm with one config on `env`; (result row, learning curve)."""
+    config = load_algo_config(alg, conf)
+    if args.days is not None:
+        if alg in ("iql_star", "ippo_star"):
+            config = dataclasses.replace(config, num_episodes=args.days)
+        else:
+            config = dataclasses.replace(config, n_iters=max(1, args.days // config.agent_frames_per_batch))
+    if alg in num_envs:
+        config = dataclasses.replace(config, num_envs=num_envs[alg])
+    t0 = time.perf_counter()
+    result = jax.block_until_ready(jax.jit(MODULES[alg].make_train(config, env))(key))
+    train_s = time.perf_counter() - t0
+    m = evaluate(env, test_policy(alg, config, env, result["runner_state"].params), key, args.test_days)
+    x = training_days(alg, config)
+    row = {"algorithm": alg, "config": Path(conf).stem, "time_cav": float(m["time_cav"]),
+           "time_human": float(m["time_human"]), "train_s": train_s, "days": int(x[-1]) * config.num_envs,
+           "num_envs": config.num_envs}
+    return row, (x * config.num_envs, np.asarray(result["metrics"]["time_cav"]))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--networks", nargs="+", default=["saint_arnoult", "provins"])
     parser.add_argument("--algs", nargs="+", default=list(MODULES))
-    parser.add_argument("--config", default="config1")
+    parser.add_argument("--config", nargs="+", default=["config1"], help="algo config name(s) or paths")
     parser.add_argument("--days", type=int, default=None, help="override training days (per env)")
     parser.add_argument("--num-envs", nargs="*", default=[], metavar="ALG=B",
-                        help="train ALG with B parallel environments (default 1, URB's setting)")
+                        help="train ALG with B parallel environments (default: the config's num_envs)")
+    parser.add_argument("--standin", action="store_true", help="BPR stand-in instead of the surrogate")
+    parser.add_argument("--skip", nargs="*", default=[], help="NETWORK:ALG:CONFIG runs to leave out")
     parser.add_argument("--human-days", type=int, default=200)
     parser.add_argument("--test-days", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
@@ -96,7 +121,7 @@ def main() -> None:
     rows, curves = [], {}
     for net in args.networks:
         scn = load_scenario(net, networks_dir=args.networks_dir)
-        tt = bpr_travel_time_fn(scn)
+        tt = bpr_travel_time_fn(scn) if args.standin else surrogate_travel_fn(scn)
         humans, t_pre = human_phase(scn, tt, args.human_days, key)
         is_cav = draw_cavs(42, scn.n_agents, 0.4)
         envs = {b: RoutingEnv(scn, is_cav, tt, reward_coefficients=behaviour_coefficients(b),
@@ -105,34 +130,24 @@ def main() -> None:
         for name, make in (("random", random_policy), ("aon", aon_policy)):
             m = evaluate(envs["selfish"], make(envs["selfish"]), key, args.test_days)
             base[name] = float(m["time_cav"])
-            rows.append({"network": net, "algorithm": name, "time_cav": base[name],
+            rows.append({"network": net, "algorithm": name, "config": "", "time_cav": base[name],
                          "time_human": float(m["time_human"]), "train_s": 0.0, "days": 0})
         print(f"{net}: {scn.n_agents} agents, {int(is_cav.sum())} CAVs; humans before mutation "
               f"{t_pre:.3f} min; random {base['random']:.3f}, AON {base['aon']:.3f}", flush=True)
         for alg in args.algs:
-            config = load_algo_config(alg, args.config)
-            if args.days is not None:
-                if alg in ("iql_star", "ippo_star"):
-                    config = dataclasses.replace(config, num_episodes=args.days)
-                else:
-                    n_iters = max(1, args.days // config.agent_frames_per_batch)
-                    config = dataclasses.replace(config, n_iters=n_iters)
-            config = dataclasses.replace(config, num_envs=num_envs.get(alg, 1))
-            env = envs[BEHAVIOUR.get(alg, "selfish")]
-            t0 = time.perf_counter()
-            result = jax.block_until_ready(jax.jit(MODULES[alg].make_train(config, env))(key))
-            train_s = time.perf_counter() - t0
-            params = result["runner_state"].params
-            m = evaluate(env, test_policy(alg, config, env, params), key, args.test_days)
-            t_cav = float(m["time_cav"])
-            x = training_days(alg, config)
-            curves[(net, alg)] = (x * config.num_envs, np.asarray(result["metrics"]["time_cav"]))
-            total_days = int(x[-1]) * config.num_envs
-            rows.append({"network": net, "algorithm": alg, "time_cav": t_cav,
-                         "time_human": float(m["time_human"]), "train_s": train_s, "days": total_days})
-            print(f"  {alg:10s} {BEHAVIOUR.get(alg, 'selfish'):12s} CAV {t_cav:.3f} min "
-                  f"({100 * (t_cav / base['aon'] - 1):+.2f}% vs AON), humans {float(m['time_human']):.3f}, "
-                  f"{total_days} days (B={config.num_envs}) in {train_s:.0f} s (incl. compile)", flush=True)
+            for conf in args.config:
+                if f"{net}:{alg}:{conf}" in args.skip:
+                    print(f"  {alg:10s} {conf:8s} skipped", flush=True)
+                    continue
+                row, curve = train_one(alg, conf, envs[BEHAVIOUR.get(alg, "selfish")], args, num_envs, key)
+                rows.append(row | {"network": net})
+                curves[(net, f"{alg} {row['config']}")] = curve
+                t_cav = row["time_cav"]
+                beh = BEHAVIOUR.get(alg, "selfish")
+                print(f"  {alg:10s} {row['config']:8s} {beh:12s} CAV {t_cav:.3f} min "
+                      f"({100 * (t_cav / base['aon'] - 1):+.2f}% vs AON), humans {row['time_human']:.3f}, "
+                      f"{row['days']} days (B={row['num_envs']}) in {row['train_s']:.0f} s (incl. compile)",
+                      flush=True)
         curves[(net, "_base")] = base
     (out / "learning_results.json").write_text(json.dumps(rows, indent=1))
     plot(curves, args.networks, out / "learning_curves.png")
@@ -140,12 +155,13 @@ def main() -> None:
 
 
 def print_table(rows: list[dict]) -> None:
-    print("\n| network | algorithm | mean CAV time (min) | vs AON | mean human time | days | train s |")
-    print("|---|---|---|---|---|---|---|")
+    print("\n| network | algorithm | config | mean CAV time (min) | vs AON | mean human time | days "
+          "| train s |")
+    print("|---|---|---|---|---|---|---|---|")
     aon = {r["network"]: r["time_cav"] for r in rows if r["algorithm"] == "aon"}
     for r in rows:
         rel = 100 * (r["time_cav"] / aon[r["network"]] - 1)
-        print(f"| {r['network']} | {r['algorithm']} | {r['time_cav']:.3f} | {rel:+.2f}% | "
+        print(f"| {r['network']} | {r['algorithm']} | {r['config']} | {r['time_cav']:.3f} | {rel:+.2f}% | "
               f"{r['time_human']:.3f} | {r['days']} | {r['train_s']:.0f} |")
 
 
@@ -155,19 +171,23 @@ def plot(curves: dict, networks: list[str], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(networks), figsize=(6 * len(networks), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(networks), figsize=(7 * len(networks), 4.5), squeeze=False)
+    colours = {alg: f"C{i}" for i, alg in enumerate(MODULES)}
     for ax, net in zip(axes[0], networks, strict=True):
-        for (n, alg), value in curves.items():
-            if n != net or alg == "_base":
+        for (n, label), value in curves.items():
+            if n != net or label == "_base":
                 continue
             x, y = value
-            ax.plot(x, y, label=alg, lw=1)
+            alg, conf = label.split(" ", 1)  # colour per algorithm, dashed for non-URB configs
+            style = "-" if conf.startswith("config") else "--"
+            ax.plot(x, y, label=label, lw=1, color=colours.get(alg), ls=style)
         base = curves.get((net, "_base"), {})
         for name, style in (("random", ":"), ("aon", "--")):
             if name in base:
                 ax.axhline(base[name], color="k", ls=style, lw=1, label=name)
         ax.set_title(f"{net} (training, exploring policies)")
-        ax.set_xlabel("training days (all environments)")
+        ax.set_xscale("log")
+        ax.set_xlabel("training days (all environments, log scale)")
         ax.set_ylabel("mean CAV travel time (min)")
         ax.legend(fontsize=7)
     fig.tight_layout()

@@ -1,11 +1,15 @@
-"""Training days per second of every algorithm (URB config1 hyperparameters), B = 1 and B = 64
-environments, 40% CAVs, on the BPR stand-in travel-time model (or pass --surrogate later).
+"""Training days per second of every algorithm (URB config1 and the urb-jax fast configs), B = 1 and
+B = 64 environments, 40% CAVs, on the calibrated surrogate (`--standin`: the BPR stand-in).
 
 A "training day" is one simulated day of one environment including the updates that go with it
 (collection + learning, whole jitted train function; compile time reported separately).
 
     python benchmarks/train_speed.py                       # saint_arnoult and ingolstadt_custom
+    python benchmarks/train_speed.py --networks saint_arnoult --config config1 fast
     python benchmarks/train_speed.py --networks saint_arnoult --algs iql ippo --envs 64
+
+Configs and B are measured side by side in one run (rows of one run compare; the machine's load
+average is printed before and after).
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -20,11 +25,15 @@ from pathlib import Path
 import jax
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from standin import make_env
+from real_surrogate import surrogate_travel_fn
+from standin import bpr_travel_time_fn
 
 from algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
 from algorithms.common import load_algo_config
 from algorithms.ippo_star import days_per_update
+from urb_jax.env import RoutingEnv
+from urb_jax.mutation import draw_cavs
+from urb_jax.rewards import behaviour_coefficients
 from urb_jax.scenario import load_scenario
 
 MODULES = {"iql": iql, "ippo": ippo, "mappo": mappo, "qmix": qmix, "vdn": vdn, "iql_star": iql_star,
@@ -84,28 +93,38 @@ def main() -> None:
     parser.add_argument("--networks", nargs="+", default=["saint_arnoult", "ingolstadt_custom"])
     parser.add_argument("--algs", nargs="+", default=list(MODULES))
     parser.add_argument("--envs", nargs="+", type=int, default=[1, 64])
-    parser.add_argument("--config", default="config1")
+    parser.add_argument("--config", nargs="+", default=["config1", "fast"])
+    parser.add_argument("--standin", action="store_true", help="BPR stand-in instead of the surrogate")
     parser.add_argument("--min-days", type=int, default=200, help="training days per measurement (at least)")
     parser.add_argument("--net", default=None, help="override network sizes, DEPTHxCELLS (e.g. 2x64)")
-    parser.add_argument("--skip", nargs="*", default=[], help="NETWORK:ALG:B combinations to leave out")
+    parser.add_argument("--skip", nargs="*", default=[],
+                        help="NETWORK:ALG:B or NETWORK:ALG:CONFIG:B combinations to leave out")
     parser.add_argument("--networks-dir", default=str(NETWORKS_DIR) if NETWORKS_DIR.is_dir() else None)
     args = parser.parse_args()
-    print(f"jax {jax.__version__} on {jax.devices()[0].platform}; URB {args.config}"
-          f"{'' if args.net is None else ' with networks ' + args.net}; BPR stand-in; 40% CAVs")
-    print(f"{'network':18s} {'alg':10s} {'B':>3s} {'CAVs':>5s} {'depth':>5s} {'compile s':>9s} "
+    print(f"jax {jax.__version__} on {jax.devices()[0].platform} ({os.cpu_count()} CPUs); configs "
+          f"{' '.join(args.config)}{'' if args.net is None else ' with networks ' + args.net}; "
+          f"{'BPR stand-in' if args.standin else 'calibrated surrogate'}; 40% CAVs; "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print(f"{'network':18s} {'alg':10s} {'config':8s} {'B':>3s} {'CAVs':>5s} {'depth':>5s} {'compile s':>9s} "
           f"{'days':>6s} {'run s':>7s} {'days/s':>8s}")
     for net in args.networks:
         scn = load_scenario(net, networks_dir=None if net == "urb_grid" else args.networks_dir)
-        envs = {b: make_env(scn, behaviour=b) for b in ("selfish", "cooperative")}
+        tt = bpr_travel_time_fn(scn) if args.standin else surrogate_travel_fn(scn)
+        is_cav = draw_cavs(42, scn.n_agents, 0.4)
+        envs = {b: RoutingEnv(scn, is_cav, tt, reward_coefficients=behaviour_coefficients(b))
+                for b in ("selfish", "cooperative")}
         for alg in args.algs:
             env = envs[BEHAVIOUR.get(alg, "selfish")]
-            for n_envs in args.envs:
-                if f"{net}:{alg}:{n_envs}" in args.skip:
-                    print(f"{net:18s} {alg:10s} {n_envs:3d}  skipped", flush=True)
-                    continue
-                r = measure(alg, env, n_envs, args.config, args.min_days, args.net)
-                print(f"{net:18s} {alg:10s} {n_envs:3d} {env.n_cavs:5d} {env.depth:5d} {r['compile_s']:9.1f} "
-                      f"{r['days']:6d} {r['run_s']:7.2f} {r['days_per_s']:8.1f}", flush=True)
+            for conf in args.config:
+                for n_envs in args.envs:
+                    if f"{net}:{alg}:{n_envs}" in args.skip or f"{net}:{alg}:{conf}:{n_envs}" in args.skip:
+                        print(f"{net:18s} {alg:10s} {conf:8s} {n_envs:3d}  skipped", flush=True)
+                        continue
+                    r = measure(alg, env, n_envs, conf, args.min_days, args.net)
+                    print(f"{net:18s} {alg:10s} {conf:8s} {n_envs:3d} {env.n_cavs:5d} {env.depth:5d} "
+                          f"{r['compile_s']:9.1f} {r['days']:6d} {r['run_s']:7.2f} {r['days_per_s']:8.1f}",
+                          flush=True)
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":
