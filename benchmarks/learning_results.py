@@ -111,6 +111,8 @@ def main() -> None:
     parser.add_argument("--human-days", type=int, default=200)
     parser.add_argument("--test-days", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cav-draw", default="urb", choices=["urb", "numpy"],
+                        help="URB's exact CAV draw (default) or session 1's numpy draw")
     parser.add_argument("--out", default="results/algorithms")
     parser.add_argument("--networks-dir", default=str(NETWORKS_DIR) if NETWORKS_DIR.is_dir() else None)
     args = parser.parse_args()
@@ -123,7 +125,7 @@ def main() -> None:
         scn = load_scenario(net, networks_dir=args.networks_dir)
         tt = bpr_travel_time_fn(scn) if args.standin else surrogate_travel_fn(scn)
         humans, t_pre = human_phase(scn, tt, args.human_days, key)
-        is_cav = draw_cavs(42, scn.n_agents, 0.4)
+        is_cav = draw_cavs(42, scn.n_agents, 0.4, agent_id=scn.agent_id, method=args.cav_draw)
         envs = {b: RoutingEnv(scn, is_cav, tt, reward_coefficients=behaviour_coefficients(b),
                               human_init=humans) for b in ("selfish", "cooperative")}
         base = {}

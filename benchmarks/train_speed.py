@@ -94,6 +94,8 @@ def main() -> None:
     parser.add_argument("--algs", nargs="+", default=list(MODULES))
     parser.add_argument("--envs", nargs="+", type=int, default=[1, 64])
     parser.add_argument("--config", nargs="+", default=["config1", "fast"])
+    parser.add_argument("--cav-draw", default="urb", choices=["urb", "numpy"],
+                        help="URB's exact CAV draw (default) or session 1's numpy draw")
     parser.add_argument("--standin", action="store_true", help="BPR stand-in instead of the surrogate")
     parser.add_argument("--min-days", type=int, default=200, help="training days per measurement (at least)")
     parser.add_argument("--net", default=None, help="override network sizes, DEPTHxCELLS (e.g. 2x64)")
@@ -110,7 +112,7 @@ def main() -> None:
     for net in args.networks:
         scn = load_scenario(net, networks_dir=None if net == "urb_grid" else args.networks_dir)
         tt = bpr_travel_time_fn(scn) if args.standin else surrogate_travel_fn(scn)
-        is_cav = draw_cavs(42, scn.n_agents, 0.4)
+        is_cav = draw_cavs(42, scn.n_agents, 0.4, agent_id=scn.agent_id, method=args.cav_draw)
         envs = {b: RoutingEnv(scn, is_cav, tt, reward_coefficients=behaviour_coefficients(b))
                 for b in ("selfish", "cooperative")}
         for alg in args.algs:
