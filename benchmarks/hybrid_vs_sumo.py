@@ -16,8 +16,9 @@ import pandas as pd
 
 def curve(folder: Path) -> pd.DataFrame:
     d = pd.read_csv(folder / "rounds.csv")
-    wall = d.get("surrogate_s", 0.0) + d.get("sumo_s", 0.0)
     cfg = json.loads((folder / "exp_config.json").read_text())
+    # Seeds trained together share each round's wall time: charge each seed its share.
+    wall = (d.get("surrogate_s", 0.0) + d.get("sumo_s", 0.0)) / cfg.get("seeds_together", 1)
     return pd.DataFrame({"run": folder.name, "mode": cfg["mode"], "round": d["round"],
                          "train_wall_s": wall.cumsum(), "sumo_t_CAV": d["sumo_time_cav"]})
 
@@ -43,7 +44,7 @@ def main() -> None:
         fig, ax = plt.subplots(figsize=(7, 4))
         for c in curves:
             ax.plot(c["train_wall_s"], c["sumo_t_CAV"], label=f"{c['run'].iloc[0]} ({c['mode'].iloc[0]})")
-        ax.set_xlabel("training wall time (s, after the human phase)")
+        ax.set_xlabel("training wall time per seed (s, after the human phase)")
         ax.set_ylabel("SUMO mean CAV time of the round's days (min)")
         ax.legend()
         fig.tight_layout()
