@@ -43,6 +43,14 @@ class DayExecutor(Protocol):
     def close(self) -> None: ...
 
 
+def failed_twice(scenario: object, day: int, seed: int, attempts: list[str], where: str = "") -> SumoDayError:
+    """The error for a day that failed on its retry too: network, day, seed and both attempts' logs."""
+    return SumoDayError(
+        f"SUMO day {day} (seed {seed}) of network {getattr(scenario, 'name', '?')} failed twice{where}.\n"
+        + "\n".join(f"attempt {i + 1}: {f}" for i, f in enumerate(attempts))
+    )
+
+
 def _batch(scenario: object, choices: np.ndarray, seeds: list[int] | np.ndarray,
            is_cav: np.ndarray | None) -> tuple[np.ndarray, list[int], list[np.ndarray | None]]:
     choices = np.asarray(choices)
@@ -202,11 +210,7 @@ class SumoPool:
                 for other in self.workers:  # abandon in-flight days, keep the pool usable
                     if other.task is not None:
                         self._restart(other)
-                raise SumoDayError(
-                    f"SUMO day {tid} (seed {seeds[tid]}) of network {getattr(scenario, 'name', '?')} "
-                    "failed twice.\n"
-                    + "\n".join(f"attempt {i + 1}: {f}" for i, f in enumerate(failures[tid]))
-                )
+                raise failed_twice(scenario, tid, seeds[tid], failures[tid])
             todo.appendleft(tid)
 
         try:

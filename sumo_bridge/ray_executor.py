@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from sumo_bridge.config import SumoConfig
-from sumo_bridge.pool import SumoDayError, _batch, log_tail
+from sumo_bridge.pool import SumoDayError, _batch, failed_twice, log_tail
 from sumo_bridge.sim import Simulator, cav_mask, check_choices, scenario_key
 from sumo_bridge.types import DayResult
 from urb_jax.errors import UrbJaxError
@@ -247,11 +247,7 @@ class RayExecutor:
                     if other.task is not None:
                         other.task = None
                         self._restart(other)
-                raise SumoDayError(
-                    f"SUMO day {tid} (seed {seeds[tid]}) of network {getattr(scenario, 'name', '?')} "
-                    "failed twice on Ray.\n"
-                    + "\n".join(f"attempt {i + 1}: {f}" for i, f in enumerate(failures[tid]))
-                )
+                raise failed_twice(scenario, tid, seeds[tid], failures[tid], where=" on Ray")
             todo.appendleft(tid)
 
         try:
