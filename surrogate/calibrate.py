@@ -116,7 +116,9 @@ def route_bias(params: Params, static: Static, sample: SumoSample, prior_days: f
     agents = np.broadcast_to(np.arange(n), sample.choices.shape)
     np.add.at(sums, (agents, sample.choices), res)
     np.add.at(counts, (agents, sample.choices), sample.arrived)
-    return jnp.asarray(sums / (counts + prior_days), jnp.float32)
+    denom = counts + prior_days
+    out = np.divide(sums, denom, out=np.zeros_like(sums), where=denom > 0)  # undriven routes: 0
+    return jnp.asarray(out, jnp.float32)
 
 
 @partial(jax.jit, static_argnames="fit")

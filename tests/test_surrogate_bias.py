@@ -51,6 +51,7 @@ def test_predict_adds_the_bias_for_choices_and_probabilities(grid):
     base = np.asarray(predict(params, static, ch))
     corrected = np.asarray(predict(with_b, static, ch))
     b = np.asarray(with_b["route_bias"])
+    assert np.isfinite(b).all() and b[0, 0] == 0.0  # no shrinkage: undriven routes stay 0, not 0/0
     np.testing.assert_allclose(corrected - base, b[np.arange(scn.n_agents), sample.choices[:3]], atol=1e-5)
     # with no shrinkage the corrected model recovers the known offsets on driven routes
     assert abs(b[0, 1] - offset[0, 1]) < 0.05
