@@ -23,6 +23,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
 from urb_jax.configio import find_config, load_json
 from urb_jax.env import EnvState, RoutingEnv
@@ -461,6 +462,14 @@ def day_metrics(days: Day) -> dict[str, jnp.ndarray]:
         "time_cav": days.time_cav.mean(),
         "time_human": days.time_human.mean(),
     }
+
+
+def adam_step(tx: optax.GradientTransformation, loss_fn: Callable[..., Any], params: Any, opt_state: Any,
+              *args: Any, has_aux: bool = False) -> tuple[tuple[Any, Any], Any]:
+    """One optimiser step on `loss_fn(params, *args)`: ((params, opt_state), loss or (loss, aux))."""
+    out, grads = jax.value_and_grad(loss_fn, has_aux=has_aux)(params, *args)
+    updates, opt_state = tx.update(grads, opt_state, params)
+    return (optax.apply_updates(params, updates), opt_state), out
 
 
 def minibatch_days(minibatch_size: int, n_cavs: int) -> int:

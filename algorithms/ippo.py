@@ -30,6 +30,7 @@ from algorithms.common import (
     Day,
     Learner,
     PPOConfig,
+    adam_step,
     collect,
     day_metrics,
     days_shape,
@@ -166,9 +167,8 @@ def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) 
 
             def sgd_step(carry, batch: Batch):
                 params, opt_state = carry
-                (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, batch)
-                updates, opt_state = tx.update(grads, opt_state, params)
-                return (optax.apply_updates(params, updates), opt_state), aux | {"loss": loss}
+                carry, (loss, aux) = adam_step(tx, loss_fn, params, opt_state, batch, has_aux=True)
+                return carry, aux | {"loss": loss}
 
             return jax.lax.scan(sgd_step, carry, shuffled)
 

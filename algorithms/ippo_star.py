@@ -25,6 +25,7 @@ from algorithms.common import (
     Day,
     IPPOStarConfig,
     Learner,
+    adam_step,
     collect,
     day_metrics,
     days_shape,
@@ -105,9 +106,7 @@ def make_learner(config: IPPOStarConfig, env: RoutingEnv) -> Learner:
                 return bandit_ppo_loss(logits, action[idx], logp_old[idx], reward[idx], config.clip_eps,
                                        config.entropy_coef, config.normalize_advantage)
 
-            value, grads = jax.value_and_grad(loss)(params)
-            updates, opt_state = tx.update(grads, opt_state, params)
-            return (optax.apply_updates(params, updates), opt_state), value
+            return adam_step(tx, loss, params, opt_state)
 
         (params, opt_state), losses = jax.lax.scan(step, (params, opt_state),
                                                    jax.random.split(key, config.num_epochs))

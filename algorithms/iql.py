@@ -23,6 +23,7 @@ from algorithms.common import (
     Day,
     IQLConfig,
     Learner,
+    adam_step,
     buffer_add,
     buffer_init,
     buffer_sample,
@@ -115,9 +116,7 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
             def sgd_step(carry, k):
                 params, opt_state = carry
                 batch = buffer_sample(buffer, k, mb_days)
-                loss, grads = jax.value_and_grad(loss_fn)(params, target, batch)
-                updates, opt_state = tx.update(grads, opt_state, params)
-                return (optax.apply_updates(params, updates), opt_state), loss
+                return adam_step(tx, loss_fn, params, opt_state, target, batch)
 
             (params, opt_state), losses = jax.lax.scan(
                 sgd_step, (params, opt_state), jax.random.split(k, steps_per_epoch))

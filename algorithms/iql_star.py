@@ -23,6 +23,7 @@ from algorithms.common import (
     Day,
     IQLStarConfig,
     Learner,
+    adam_step,
     buffer_add,
     buffer_init,
     collect,
@@ -89,9 +90,7 @@ def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:
             def loss(p):
                 return bandit_loss(mlp.apply(p, obs[idx] / scale), action[idx], reward[idx])
 
-            value, grads = jax.value_and_grad(loss)(params)
-            updates, opt_state = tx.update(grads, opt_state, params)
-            return (optax.apply_updates(params, updates), opt_state), value
+            return adam_step(tx, loss, params, opt_state)
 
         (params, opt_state), losses = jax.lax.scan(step, (params, opt_state),
                                                    jax.random.split(key, config.num_epochs))

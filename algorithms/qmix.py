@@ -26,6 +26,7 @@ from algorithms.common import (
     Day,
     Learner,
     MixerConfig,
+    adam_step,
     buffer_add,
     buffer_init,
     buffer_sample,
@@ -165,9 +166,7 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
         def sgd_step(carry, k):
             params, target, opt_state = carry
             batch = buffer_sample(buffer, k, mb_days)
-            loss, grads = jax.value_and_grad(loss_fn)(params, target, batch)
-            updates, opt_state = tx.update(grads, opt_state, params)
-            params = optax.apply_updates(params, updates)
+            (params, opt_state), loss = adam_step(tx, loss_fn, params, opt_state, target, batch)
             return (params, polyak(target, params, 1.0 - config.tau), opt_state), loss
 
         old = (runner.params, runner.target, runner.opt_state)
