@@ -91,6 +91,16 @@ class MixerConfig(TorchRLCommon):
     exploration_fraction: float = 0.6
     mixing_embed_dim: int = 192  # QMIX only
     hypernet_hidden: int = 0  # QMIX only: 0 = URB's single linear hypernetwork; > 0 = pymarl's two layers
+    # URB: the team reward is the mean of the CAVs' rewards. "sum" orders joint actions the same
+    # way but keeps each CAV's Q value on the scale of its own travel time instead of 1/C of it,
+    # which Adam resolves with hundreds of CAVs (docs/algorithms.md, "team reward scale").
+    team_reward: str = "mean"
+
+    def __post_init__(self) -> None:
+        if self.team_reward not in ("mean", "sum"):
+            from urb_jax.errors import ConfigError
+
+            raise ConfigError(f"key 'team_reward' is {self.team_reward!r}. Fix: use 'mean' (URB) or 'sum'.")
 
 
 @dataclass(frozen=True)

@@ -97,16 +97,16 @@ def make_mixer(config: MixerConfig, env: RoutingEnv, mixer: str) -> nn.Module:
 
 
 def mixed_td_loss(q_apply, mix_apply, params: Any, target: Any, batch: Day, mask: jnp.ndarray,
-                  gamma: float, state_fn) -> jnp.ndarray:
-    """Mean squared TD(0) error of Q_tot on the team reward (mean over CAVs) per day."""
+                  gamma: float, state_fn, team_reward: str = "mean") -> jnp.ndarray:
+    """Mean squared TD(0) error of Q_tot on the team reward (mean, or sum, over CAVs) per day."""
     q = q_apply(params["agent"], batch.obs)  # [M, C, K]
     q_a = jnp.take_along_axis(q, batch.action[..., None], axis=-1)[..., 0]
     q_tot = mix_apply(params["mixer"], q_a, state_fn(batch.obs))
     q_next = masked(q_apply(target["agent"], batch.next_obs), mask).max(-1)
     q_tot_next = mix_apply(target["mixer"], q_next, state_fn(batch.next_obs))
-    team_reward = batch.reward.mean(-1)
+    team = batch.reward.sum(-1) if team_reward == "sum" else batch.reward.mean(-1)
     done = batch.done.all(-1).astype(jnp.float32)
-    y = team_reward + gamma * (1.0 - done) * q_tot_next
+    y = team + gamma * (1.0 - done) * q_tot_next
     return jnp.mean((q_tot - jax.lax.stop_gradient(y)) ** 2)
 
 
@@ -141,7 +141,8 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
         return env.global_state(obs / scale)
 
     def loss_fn(params: Any, target: Any, batch: Day) -> jnp.ndarray:
-        return mixed_td_loss(net.apply, mix.apply, params, target, batch, mask, config.gamma, state_fn)
+        return mixed_td_loss(net.apply, mix.apply, params, target, batch, mask, config.gamma, state_fn,
+                             config.team_reward)
 
     def init(key: jax.Array) -> RunnerState:
         k_agent, k_mix, k_env, _ = jax.random.split(key, 4)

@@ -12,6 +12,7 @@ import pytest
 
 from algorithms.common import (
     Day,
+    MixerConfig,
     buffer_add,
     buffer_init,
     buffer_sample,
@@ -25,6 +26,7 @@ from algorithms.ippo_star import bandit_ppo_loss
 from algorithms.iql import td_loss
 from algorithms.iql_star import bandit_loss
 from algorithms.qmix import QMixer, VDNMixer, mixed_td_loss
+from urb_jax.errors import ConfigError
 
 MASK = jnp.array([[True, True, False], [True, True, True]])  # CAV0 has 2 distinct routes
 
@@ -61,6 +63,18 @@ def test_vdn_sums_agent_values_on_team_reward():
     q_tot = 2.0 + (-1.0)
     y = -3.0 + 0.5 * (4.0 + 3.0)  # team reward = mean, target: sum of masked maxima
     assert float(loss) == pytest.approx((q_tot - y) ** 2)
+
+
+def test_team_reward_sum_scales_the_reward_not_the_bootstrap():
+    batch = day_batch([-2.0, -4.0], [False, False])
+    params = {"agent": Q_ONLINE, "mixer": {}}
+    target = {"agent": Q_TARGET, "mixer": {}}
+    loss = mixed_td_loss(fake_q, VDNMixer().apply, params, target, batch, MASK, 0.5,
+                         lambda o: o.reshape(1, -1), team_reward="sum")
+    y = -6.0 + 0.5 * (4.0 + 3.0)  # team reward = sum of the CAVs' rewards
+    assert float(loss) == pytest.approx((1.0 - y) ** 2)
+    with pytest.raises(ConfigError, match="'team_reward' is 'max'"):
+        MixerConfig(team_reward="max")
 
 
 def qmix_numpy(params, q, s):
