@@ -41,8 +41,10 @@ def test_fast_configs_load_for_every_algorithm():
         assert fast.num_minibatches > 0 and urb.num_minibatches == 0
         assert fast.mlp_cells * fast.mlp_depth < urb.mlp_cells * urb.mlp_depth
     assert load_algo_config("qmix", "fast").hypernet_hidden > 0
-    for i in range(1, 6):  # URB's configs keep URB's single-layer hypernetwork
+    for i in range(1, 6):  # URB's configs keep URB's single-layer hypernetwork and mean team reward
         assert load_algo_config("qmix", f"config{i}").hypernet_hidden == 0
+        assert load_algo_config("vdn", f"config{i}").team_reward == "mean"
+    assert {load_algo_config(a, "fast").team_reward for a in ("qmix", "vdn")} == {"sum"}
 
 
 def test_update_plan_hand_computed():
