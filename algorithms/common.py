@@ -91,16 +91,17 @@ class MixerConfig(TorchRLCommon):
     exploration_fraction: float = 0.6
     mixing_embed_dim: int = 192  # QMIX only
     hypernet_hidden: int = 0  # QMIX only: 0 = URB's single linear hypernetwork; > 0 = pymarl's two layers
-    # URB: the team reward is the mean of the CAVs' rewards. "sum" orders joint actions the same
-    # way but keeps each CAV's Q value on the scale of its own travel time instead of 1/C of it,
-    # which Adam resolves with hundreds of CAVs (docs/algorithms.md, "team reward scale").
-    team_reward: str = "mean"
+    # "team" (URB): Q_tot = mixer(q) on the mean CAV reward, so a CAV's Q, and the gap between its
+    # routes, is 1/C of its own travel time. "own": the mixer sees q / C, so each CAV's Q lives on
+    # its own travel-time scale, which Adam resolves with hundreds of CAVs; Q_tot and the target are
+    # unchanged (docs/algorithms.md, "Per-CAV Q scale").
+    q_scale: str = "team"
 
     def __post_init__(self) -> None:
-        if self.team_reward not in ("mean", "sum"):
+        if self.q_scale not in ("team", "own"):
             from urb_jax.errors import ConfigError
 
-            raise ConfigError(f"key 'team_reward' is {self.team_reward!r}. Fix: use 'mean' (URB) or 'sum'.")
+            raise ConfigError(f"key 'q_scale' is {self.q_scale!r}. Fix: use 'team' (URB) or 'own'.")
 
 
 @dataclass(frozen=True)

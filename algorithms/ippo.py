@@ -89,15 +89,19 @@ def make_networks(config: PPOConfig, env: RoutingEnv, centralised: bool = False)
                              embed_dim=config.od_embedding_dim, normalize=config.normalize_obs)
         return actor, net.init, lambda p, obs: net.apply(p, obs)[..., 0]
     scale = jnp.asarray(obs_scale(env)) if config.normalize_obs else 1.0
-    mlp = MLP(critic_hidden, 1, "relu")
     n_cav = env.n_cavs
+    # Shared parameters (URB): one value for the team, broadcast to every CAV. Per-CAV parameters
+    # (TorchRL's centralised critic without sharing): one value head per CAV on the global state,
+    # here as C heads on one trunk, so each CAV's own-reward advantage has its own baseline.
+    heads = 1 if config.shared_parameters else n_cav
+    mlp = MLP(critic_hidden, heads, "relu")
 
     def critic_init(key: jax.Array) -> Any:
         return mlp.init(key, jnp.zeros((env.n_cavs * env.obs_size,)))
 
     def critic_apply(params: Any, obs: jnp.ndarray) -> jnp.ndarray:
         state = env.global_state(obs / scale)  # [..., C * D]
-        value = mlp.apply(params, state)  # [..., 1]
+        value = mlp.apply(params, state)  # [..., 1] or [..., C]
         return jnp.broadcast_to(value, (*value.shape[:-1], n_cav))
 
     return actor, critic_init, critic_apply

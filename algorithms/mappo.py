@@ -2,6 +2,9 @@
 
 The critic's input is `env.global_state(obs)` (every CAV's scaled observation, flattened
 [C * D]); with shared parameters URB broadcasts its single value to every CAV, and so do we.
+With per-CAV parameters (`shared_parameters: false`) each CAV has its own value head on the
+global state, so a selfish reward (task config1) gets a per-CAV baseline instead of one team
+value (whose advantage would mostly be the CAV's own travel-time level).
 Everything else (actor, GAE, clipped loss, minibatches of whole days) is `algorithms.ippo`;
 URB trains MAPPO with the cooperative reward, which the environment's reward coefficients set.
 """

@@ -97,14 +97,15 @@ def make_mixer(config: MixerConfig, env: RoutingEnv, mixer: str) -> nn.Module:
 
 
 def mixed_td_loss(q_apply, mix_apply, params: Any, target: Any, batch: Day, mask: jnp.ndarray,
-                  gamma: float, state_fn, team_reward: str = "mean") -> jnp.ndarray:
-    """Mean squared TD(0) error of Q_tot on the team reward (mean, or sum, over CAVs) per day."""
+                  gamma: float, state_fn, q_scale: float = 1.0) -> jnp.ndarray:
+    """Mean squared TD(0) error of Q_tot on the team reward (mean over CAVs) per day; the mixer
+    sees each CAV's Q times `q_scale` (1, or 1/C for per-CAV Qs on their own scale)."""
     q = q_apply(params["agent"], batch.obs)  # [M, C, K]
     q_a = jnp.take_along_axis(q, batch.action[..., None], axis=-1)[..., 0]
-    q_tot = mix_apply(params["mixer"], q_a, state_fn(batch.obs))
+    q_tot = mix_apply(params["mixer"], q_scale * q_a, state_fn(batch.obs))
     q_next = masked(q_apply(target["agent"], batch.next_obs), mask).max(-1)
-    q_tot_next = mix_apply(target["mixer"], q_next, state_fn(batch.next_obs))
-    team = batch.reward.sum(-1) if team_reward == "sum" else batch.reward.mean(-1)
+    q_tot_next = mix_apply(target["mixer"], q_scale * q_next, state_fn(batch.next_obs))
+    team = batch.reward.mean(-1)
     done = batch.done.all(-1).astype(jnp.float32)
     y = team + gamma * (1.0 - done) * q_tot_next
     return jnp.mean((q_tot - jax.lax.stop_gradient(y)) ** 2)
@@ -137,12 +138,14 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
                              config.exploration_fraction * n_days * config.n_iters)
     tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
 
+    q_scale = 1.0 / max(n_cav, 1) if config.q_scale == "own" else 1.0
+
     def state_fn(obs: jnp.ndarray) -> jnp.ndarray:
         return env.global_state(obs / scale)
 
     def loss_fn(params: Any, target: Any, batch: Day) -> jnp.ndarray:
         return mixed_td_loss(net.apply, mix.apply, params, target, batch, mask, config.gamma, state_fn,
-                             config.team_reward)
+                             q_scale)
 
     def init(key: jax.Array) -> RunnerState:
         k_agent, k_mix, k_env, _ = jax.random.split(key, 4)

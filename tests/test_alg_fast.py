@@ -41,10 +41,10 @@ def test_fast_configs_load_for_every_algorithm():
         assert fast.num_minibatches > 0 and urb.num_minibatches == 0
         assert fast.mlp_cells * fast.mlp_depth < urb.mlp_cells * urb.mlp_depth
     assert load_algo_config("qmix", "fast").hypernet_hidden > 0
-    for i in range(1, 6):  # URB's configs keep URB's single-layer hypernetwork and mean team reward
+    for i in range(1, 6):  # URB's configs keep URB's single-layer hypernetwork and per-CAV Q scale
         assert load_algo_config("qmix", f"config{i}").hypernet_hidden == 0
-        assert load_algo_config("vdn", f"config{i}").team_reward == "mean"
-    assert {load_algo_config(a, "fast").team_reward for a in ("qmix", "vdn")} == {"sum"}
+        assert load_algo_config("vdn", f"config{i}").q_scale == "team"
+    assert {load_algo_config(a, "fast").q_scale for a in ("qmix", "vdn")} == {"own"}
 
 
 def test_update_plan_hand_computed():
@@ -144,3 +144,21 @@ def test_two_layer_hypernetwork_shape_reference_and_monotonicity():
     batch_s = jax.random.normal(jax.random.PRNGKey(10), (3, 4, state_dim))
     assert mixer.apply(params, batch_q, batch_s).shape == (3, 4)
     assert bool((params["params"]["hyper_w1"]["kernel"] < 0).any())  # the abs makes it monotonic
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_mappo_critic_one_value_per_cav_without_sharing(env, shared):
+    """URB broadcasts one team value with shared parameters; per-CAV parameters give each CAV its
+    own value head on the global state."""
+    config = PPOConfig(mlp_depth=1, mlp_cells=8, critic_depth=1, critic_cells=8, shared_parameters=shared)
+    _, critic_init, critic_apply = ippo.make_networks(config, env, centralised=True)
+    params = critic_init(jax.random.PRNGKey(0))
+    obs = jax.random.uniform(jax.random.PRNGKey(1), (3, env.n_cavs, env.obs_size)) * 100.0
+    values = np.asarray(critic_apply(params, obs))
+    assert values.shape == (3, env.n_cavs)
+    spread = values.max(-1) - values.min(-1)
+    if shared:
+        assert np.all(spread == 0.0)
+    else:
+        assert np.all(spread > 0.0)
+        assert params["params"]["Dense_1"]["kernel"].shape == (8, env.n_cavs)

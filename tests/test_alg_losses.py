@@ -65,16 +65,17 @@ def test_vdn_sums_agent_values_on_team_reward():
     assert float(loss) == pytest.approx((q_tot - y) ** 2)
 
 
-def test_team_reward_sum_scales_the_reward_not_the_bootstrap():
+def test_own_q_scale_feeds_q_over_c_to_the_mixer():
     batch = day_batch([-2.0, -4.0], [False, False])
     params = {"agent": Q_ONLINE, "mixer": {}}
     target = {"agent": Q_TARGET, "mixer": {}}
     loss = mixed_td_loss(fake_q, VDNMixer().apply, params, target, batch, MASK, 0.5,
-                         lambda o: o.reshape(1, -1), team_reward="sum")
-    y = -6.0 + 0.5 * (4.0 + 3.0)  # team reward = sum of the CAVs' rewards
-    assert float(loss) == pytest.approx((1.0 - y) ** 2)
-    with pytest.raises(ConfigError, match="'team_reward' is 'max'"):
-        MixerConfig(team_reward="max")
+                         lambda o: o.reshape(1, -1), q_scale=0.5)
+    q_tot = (2.0 + (-1.0)) / 2  # VDN with own-scale Qs: Q_tot = mean of the chosen Qs
+    y = -3.0 + 0.5 * (4.0 + 3.0) / 2  # mean team reward, bootstrap from the mean of the maxima
+    assert float(loss) == pytest.approx((q_tot - y) ** 2)
+    with pytest.raises(ConfigError, match="'q_scale' is 'sum'"):
+        MixerConfig(q_scale="sum")
 
 
 def qmix_numpy(params, q, s):
