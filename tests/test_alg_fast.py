@@ -47,6 +47,18 @@ def test_fast_configs_load_for_every_algorithm():
     assert {load_algo_config(a, "fast").q_scale for a in ("qmix", "vdn")} == {"own"}
 
 
+def test_hybrid_configs_are_per_cav_with_urb_schedule():
+    """configs/algo/<alg>/hybrid.json: URB's config1 schedule, one network per CAV, sized for 6,000
+    days on 16 envs (the hybrid trainer's defaults)."""
+    for alg in TORCHRL:
+        hybrid, urb = load_algo_config(alg, "hybrid"), load_algo_config(alg, "config1")
+        assert not hybrid.shared_parameters and urb.shared_parameters
+        assert (hybrid.agent_frames_per_batch, hybrid.num_epochs, hybrid.lr) == (
+            urb.agent_frames_per_batch, urb.num_epochs, urb.lr)
+        assert hybrid.num_envs * hybrid.n_iters * hybrid.agent_frames_per_batch >= 6000
+    assert {load_algo_config(a, "hybrid").q_scale for a in ("qmix", "vdn")} == {"own"}
+
+
 def test_update_plan_hand_computed():
     # URB: frames // minibatch_size steps of minibatch_size // C whole days; B = 64 -> 64x the steps
     assert update_plan(0, 256, 20, 88) == (6, 2)  # 20 * 88 // 256 = 6; 256 // 88 = 2
