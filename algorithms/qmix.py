@@ -10,6 +10,7 @@ make dQ_tot/dq_i >= 0, so per-CAV argmax is the joint argmax. `mixer="vdn"` is V
 Replay of whole days (memory_size frames = memory_size // C days); TD(0) target
 y = r_team + gamma * (1 - done) * Q_tot_target(max_a Q_target(s'), s'); soft target update
 target <- (1 - tau) target + tau online after every gradient step; epsilon-greedy as IQL.
+`q_scale="own"` feeds q_i / C to the mixer so per-CAV Qs keep one CAV's scale (docs/algorithms.md).
 """
 
 from __future__ import annotations
@@ -105,9 +106,9 @@ def mixed_td_loss(q_apply, mix_apply, params: Any, target: Any, batch: Day, mask
     q_tot = mix_apply(params["mixer"], q_scale * q_a, state_fn(batch.obs))
     q_next = masked(q_apply(target["agent"], batch.next_obs), mask).max(-1)
     q_tot_next = mix_apply(target["mixer"], q_scale * q_next, state_fn(batch.next_obs))
-    team = batch.reward.mean(-1)
+    team_reward = batch.reward.mean(-1)
     done = batch.done.all(-1).astype(jnp.float32)
-    y = team + gamma * (1.0 - done) * q_tot_next
+    y = team_reward + gamma * (1.0 - done) * q_tot_next
     return jnp.mean((q_tot - jax.lax.stop_gradient(y)) ** 2)
 
 
