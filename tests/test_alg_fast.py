@@ -26,6 +26,8 @@ from algorithms.common import (
 from algorithms.qmix import QMixer
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mixer_reference import qmix_numpy
 from standin import make_env
 
 TORCHRL = ("iql", "ippo", "mappo", "qmix", "vdn")
@@ -114,25 +116,6 @@ def test_adam_steps_per_update(env, num_minibatches, n_envs):
             assert adam_count(runner.opt_state) == expected, module.__name__
 
 
-def qmix2_numpy(params, q, s):
-    """Independent numpy forward pass of the two-layer-hypernetwork mixer."""
-    p = jax.tree_util.tree_map(np.asarray, params["params"])
-
-    def dense(name, x):
-        return x @ p[name]["kernel"] + p[name]["bias"]
-
-    def hyper(name, x):
-        return dense(name, np.maximum(dense(f"{name}_hidden", x), 0.0))
-
-    c = q.shape[-1]
-    w1 = np.abs(hyper("hyper_w1", s)).reshape(c, -1)
-    h = q @ w1 + dense("hyper_b1", s)
-    h = np.where(h > 0, h, np.expm1(h))
-    w2 = np.abs(hyper("hyper_w2", s))
-    v = dense("hyper_v2", np.maximum(dense("hyper_v1", s), 0.0))[0]
-    return float(h @ w2 + v)
-
-
 def test_two_layer_hypernetwork_shape_reference_and_monotonicity():
     n_agents, embed, hidden, state_dim = 6, 5, 7, 11
     mixer = QMixer(n_agents=n_agents, embed_dim=embed, hypernet_hidden=hidden)
@@ -150,7 +133,7 @@ def test_two_layer_hypernetwork_shape_reference_and_monotonicity():
         q = jax.random.normal(kq, (n_agents,)) * 3.0
         s = jax.random.normal(ks, (state_dim,))
         value, grad = value_and_grad(q, s)
-        assert float(value) == pytest.approx(qmix2_numpy(params, np.asarray(q), np.asarray(s)), rel=1e-5,
+        assert float(value) == pytest.approx(qmix_numpy(params, np.asarray(q), np.asarray(s)), rel=1e-5,
                                              abs=1e-5)
         assert bool((grad >= 0).all()) and bool((grad > 0).any())
     batch_q = jax.random.normal(jax.random.PRNGKey(9), (3, 4, n_agents))

@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -27,6 +29,9 @@ from algorithms.iql import td_loss
 from algorithms.iql_star import bandit_loss
 from algorithms.qmix import QMixer, VDNMixer, mixed_td_loss
 from urb_jax.errors import ConfigError
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mixer_reference import qmix_numpy
 
 MASK = jnp.array([[True, True, False], [True, True, True]])  # CAV0 has 2 distinct routes
 
@@ -76,22 +81,6 @@ def test_own_q_scale_feeds_q_over_c_to_the_mixer():
     assert float(loss) == pytest.approx((q_tot - y) ** 2)
     with pytest.raises(ConfigError, match="'q_scale' is 'sum'"):
         MixerConfig(q_scale="sum")
-
-
-def qmix_numpy(params, q, s):
-    """Independent numpy forward pass of the QMIX mixer from its parameters."""
-    p = jax.tree_util.tree_map(np.asarray, params["params"])
-
-    def dense(name, x):
-        return x @ p[name]["kernel"] + p[name]["bias"]
-
-    c = q.shape[-1]
-    w1 = np.abs(dense("hyper_w1", s)).reshape(c, -1)
-    h = q @ w1 + dense("hyper_b1", s)
-    h = np.where(h > 0, h, np.expm1(h))
-    w2 = np.abs(dense("hyper_w2", s))
-    v = dense("hyper_v2", np.maximum(dense("hyper_v1", s), 0.0))[0]
-    return float(h @ w2 + v)
 
 
 def test_qmix_mixer_matches_reference_and_is_monotonic():
