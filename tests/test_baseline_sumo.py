@@ -10,7 +10,7 @@ from urb_jax.results import read_records
 pytestmark = pytest.mark.sumo
 
 
-def test_aon_baseline_on_sumo(tmp_path, grid_scenario):
+def test_aon_baseline_on_sumo(tmp_path, grid_scenario, capsys):
     from sumo_bridge import run_day
 
     out = run_baseline(model="aon", results_dir=str(tmp_path), progress=False,
@@ -33,3 +33,24 @@ def test_aon_baseline_on_sumo(tmp_path, grid_scenario):
     t_pre = rec[rec.day <= 5].groupby("day")["travel_time"].mean().mean()
     assert m["t_pre"] == pytest.approx(t_pre, rel=1e-5)
     assert 1.0 < m["t_CAV"] < 30.0 and m["winrate"] in (0.0, 1.0)
+    # the last (test) day exported as a routes file: SUMO's own CLI replays it to the recorded times
+    _check_export_replays(out["folder"], grid_scenario, tmp_path, capsys)
+
+
+def _check_export_replays(folder, scn, tmp_path, capsys):
+    import json
+
+    from urb_jax.cli import main
+    from urb_jax.day_export import cli_travel_times
+
+    rou = tmp_path / "last.rou.xml"
+    capsys.readouterr()
+    assert main(["export-day", str(folder), "--out", str(rou)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    rec = read_records(folder)
+    last = rec[rec.day == rec.day.max()].set_index("agent").loc[scn.agent_id]
+    assert info["day"] == 10 and info["cavs"] == int((last["kind"] == "CAV").sum()) > 0
+    np.testing.assert_allclose(cli_travel_times(scn, rou, 42), last["travel_time"].to_numpy(), rtol=1e-6)
+    # a day that is not in the records is a clear error naming the fix
+    assert main(["export-day", str(folder), "--day", "99", "--out", str(tmp_path / "x.rou.xml")]) == 2
+    assert "--day" in capsys.readouterr().err

@@ -1,7 +1,9 @@
 """run_day against SUMO's own command-line run, and the stuck-vehicle rules.
 
-The CLI reference is built here independently: a plain .rou.xml with every vehicle written out
-with RouteRL's `vehicle.add` defaults, run by the `sumo` binary of the eclipse-sumo wheel.
+The CLI reference: `urb-jax export-day`'s plain .rou.xml (every vehicle written out with RouteRL's
+`vehicle.add` defaults, in its insertion order) run by the `sumo` binary of the eclipse-sumo wheel,
+so libsumo's runtime insertion, stepping and arrival bookkeeping are checked against SUMO's own
+one-shot run.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 import pytest
 
 from sumo_bridge import ARRIVED, REMOVED_CAP, REMOVED_STUCK, SumoConfig, run_day
+from urb_jax.day_export import day_routes_xml
 
 pytestmark = pytest.mark.sumo
 
@@ -28,19 +31,8 @@ def _sumo_binary() -> str:
 
 def _cli_day(scn, choices, is_cav, seed, tmp: Path) -> tuple[dict, dict]:
     """SUMO's one-shot run of the same day; returns (tripinfo by id, statistic attributes)."""
-    rows = sorted(range(scn.n_agents), key=lambda i: (int(scn.agent_depart[i]), bool(is_cav[i]), i))
-    lines = ['<routes>', '<vType id="Human"/>', '<vType id="AV"/>']
-    for od, k in sorted({(int(scn.agent_od[i]), int(choices[i])) for i in rows}):
-        lines.append(f'<route id="r{od}_{k}" edges="{" ".join(scn.route_edge_ids(od, k))}"/>')
-    for i in rows:
-        lines.append(
-            f'<vehicle id="{scn.agent_id[i]}" type="{"AV" if is_cav[i] else "Human"}" '
-            f'route="r{scn.agent_od[i]}_{choices[i]}" depart="{scn.agent_depart[i]}" departLane="first" '
-            'departPos="base" departSpeed="0" arrivalLane="current" arrivalPos="max" arrivalSpeed="current"/>'
-        )
-    lines.append("</routes>")
     rou = tmp / "day.rou.xml"
-    rou.write_text("\n".join(lines))
+    rou.write_text(day_routes_xml(scn, choices, is_cav))
     subprocess.run(
         [_sumo_binary(), "-n", scn.net_file, "-r", str(rou), "--seed", str(seed), "--time-to-teleport", "-1",
          "--no-step-log", "true", "--no-warnings", "true", "--tripinfo-output", str(tmp / "trip.xml"),

@@ -10,5 +10,6 @@ COMMANDS = [
     "urb_jax.commands.validate_surrogate",
     "urb_jax.commands.baseline",
     "urb_jax.commands.leaderboard",
+    "urb_jax.commands.export_day",
     "urb_jax.commands.train",
 ]

@@ -1,0 +1,78 @@
+"""How much room did a finished run's CAVs have? SUMO days around its test day; prints a table.
+
+Usage: python benchmarks/cav_headroom.py RUN_FOLDER [--networks-dir DIR] [--sumo-binary BIN ...]
+
+Humans are deterministic and frozen after mutation, so every test day has the same human routes
+and the CAVs' t_CAV is one SUMO day. Rows (all SUMO, same seed):
+  policy             the run's test day replayed
+  AON                CAVs on their minimum free-flow route, same humans (URB's AON baseline)
+  CAVs pre-mutation  the CAV agents' own mean time over the last 50 human days (they were humans)
+  CAVs only: ...     the humans removed from the day: what the CAVs' routes cost with no human
+                     traffic at all; no routing of the CAVs among the humans can get near it
+  --sumo-binary      the test day exported (urb_jax.day_export) and run by another SUMO build's
+                     CLI, e.g. an older eclipse-sumo wheel unpacked with `pip install --target`
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from sumo_bridge import run_day
+from urb_jax.day_export import cli_travel_times, day_routes_xml, recorded_day, run_config, scenario_of_run
+from urb_jax.results import read_records
+
+
+def cavs_only(scn, idx: np.ndarray):
+    fields = ("agent_id", "agent_od", "agent_origin", "agent_destination", "agent_depart")
+    return dataclasses.replace(scn, **{f: getattr(scn, f)[idx] for f in fields},
+                               agent_kind=tuple(scn.agent_kind[i] for i in idx))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run")
+    ap.add_argument("--networks-dir", default=None)
+    ap.add_argument("--sumo-binary", nargs="*", default=[])
+    args = ap.parse_args()
+    cfg = run_config(args.run)
+    seed, H = int(cfg["env_seed"]), int(cfg["human_learning_episodes"])
+    scn = scenario_of_run(args.run, args.networks_dir)
+    day, choices, is_cav, recorded = recorded_day(args.run, scn)
+    rec = read_records(args.run, columns=["day", "agent", "travel_time"])
+    pre = rec[(rec["day"] > H - 50) & (rec["day"] <= H)].pivot(index="day", columns="agent",
+                                                                  values="travel_time")[scn.agent_id]
+    pre = pre.to_numpy()
+    aon = np.argmin(np.where(scn.route_valid, scn.fft, np.inf), axis=1)
+    idx = np.flatnonzero(is_cav)
+    sub = cavs_only(scn, idx)
+    rows = [("t_pre (all agents, last 50 human days)", pre.mean(), None)]
+    rows.append(("CAVs pre-mutation (same agents as humans)", pre[:, is_cav].mean(), None))
+    pol = run_day(scn, choices, seed=seed, is_cav=is_cav)
+    assert np.allclose(pol.travel_time, recorded, rtol=1e-6), "replay differs from the records"
+    rows.append((f"policy (test day {day} replayed)", pol.travel_time[is_cav].mean(),
+                 pol.travel_time[~is_cav].mean()))
+    a = run_day(scn, np.where(is_cav, aon, choices), seed=seed, is_cav=is_cav)
+    rows.append(("AON, same humans", a.travel_time[is_cav].mean(), a.travel_time[~is_cav].mean()))
+    for name, ch in (("policy", choices[idx]), ("AON", aon[idx])):
+        r = run_day(sub, ch, seed=seed, is_cav=np.ones(len(idx), bool))
+        rows.append((f"CAVs only, {name} routes (no humans)", r.travel_time.mean(), None))
+    for b in args.sumo_binary:
+        with tempfile.TemporaryDirectory() as tmp:
+            rou = Path(tmp) / "day.rou.xml"
+            rou.write_text(day_routes_xml(scn, choices, is_cav))
+            t = cli_travel_times(scn, rou, seed, b)
+        rows.append((f"policy on {b}", t[is_cav].mean(), t[~is_cav].mean()))
+    print(f"{scn.name}: {scn.n_agents} agents, {len(idx)} CAVs, run {args.run}")
+    print(f"| {'SUMO day':<52} | t_CAV  | t_HDV  |")
+    print(f"|{'-' * 54}|--------|--------|")
+    for name, c, h in rows:
+        print(f"| {name:<52} | {c:.4f} | {'' if h is None else f'{h:.4f}':<6} |")
+
+
+if __name__ == "__main__":
+    main()
