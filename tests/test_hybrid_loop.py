@@ -80,7 +80,8 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     assert (phases.loc[H + T + 1:] == "test").all()
     # Every recorded day is a day the executor ran, in order (calibration days are not recorded).
     ran = [c for batch, _ in ex.batches for c in batch]
-    human_ran, rest = ran[:H], ran[H + 2:]  # 2 varied calibration days after the human phase
+    # 2 varied calibration days after the human phase; the AON reference day last
+    human_ran, rest, aon_day = ran[:H], ran[H + 2:-1], ran[-1]
     wide = rec.pivot(index="day", columns="agent", values="action").sort_index()
     recorded = wide.to_numpy()
     agent_ids = wide.columns.to_numpy()
@@ -95,6 +96,13 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     is_cav = ex.batches[-1][1]
     test_times = [FakeDay()(scn, c, seed=42).travel_time[is_cav].mean() for c in rest[T:]]
     assert out["metrics"]["t_CAV"] == pytest.approx(np.mean(test_times), rel=1e-5)
+    # the AON reference: the first test day's humans, every CAV on its minimum free-flow route
+    from urb_jax.baselines import aon_routes
+
+    np.testing.assert_array_equal(aon_day, np.where(is_cav, aon_routes(scn.fft, scn.route_valid), rest[T]))
+    aon_t = FakeDay()(scn, aon_day, seed=42).travel_time
+    assert cfg["aon_same_humans"]["t_CAV"] == pytest.approx(aon_t[is_cav].mean(), rel=1e-5)
+    assert cfg["aon_same_humans"]["t_HDV"] == pytest.approx(aon_t[~is_cav].mean(), rel=1e-5)
     assert np.isfinite(out["metrics"]["t_pre"]) and np.isfinite(out["metrics"]["t_train"])
     assert (folder / "plots" / "surrogate_error.png").is_file()
 
@@ -109,8 +117,10 @@ def test_identical_test_days_run_once_with_the_same_metrics(confs, tmp_path):
     n_plain = sum(len(b) for b, _ in plain_ex.batches)
     n_reuse = sum(len(b) for b, _ in reuse_ex.batches)
     test_days = len(read_records(plain["folder"]).query("phase == 'test'")["day"].unique())
-    distinct = np.unique(np.concatenate([b for b, _ in plain_ex.batches])[-test_days:], axis=0).shape[0]
-    assert n_reuse == n_plain - test_days + distinct < n_plain
+    ran = np.concatenate([b for b, _ in plain_ex.batches])
+    distinct = np.unique(ran[-test_days - 1:-1], axis=0).shape[0]  # the AON reference day is last
+    aon_is_a_test_day = bool((ran[-test_days - 1:-1] == ran[-1]).all(axis=1).any())
+    assert n_reuse == n_plain - test_days + distinct - aon_is_a_test_day < n_plain
     pd.testing.assert_frame_equal(read_records(plain["folder"]), read_records(reuse["folder"]))
     for key, value in plain["metrics"].items():
         assert reuse["metrics"][key] == pytest.approx(value, nan_ok=True)
@@ -126,7 +136,7 @@ def test_modes(confs, tmp_path, mode):
     if mode == "sumo":  # 18 budget days in SUMO, 2 per round; no calibration days
         assert cfg["sumo_training_days"] == 18 and cfg["surrogate_training_days"] == 0
         assert "surrogate_days" not in rounds
-        assert len(ex.batches) == H + 9 + E // 2
+        assert len(ex.batches) == H + 9 + E // 2 + 1  # + the AON reference day
     else:  # no SUMO training day; the test still runs in SUMO
         assert cfg["sumo_training_days"] == 0 and "sumo_days" not in rounds
         assert (rec["phase"] == "train").sum() == 0 and rec["day"].max() == H + E

@@ -61,10 +61,11 @@ def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa
     # One human phase for both seeds (H single-day human batches) in both runs.
     for e in (pair["executor"], ex):
         assert len([b for b, cav in e.batches if cav is None and len(b) == 1]) == H
-    # Vmapped: each round's (and each test chunk's) days of both seeds go out as one batch of 2 x P.
+    # Vmapped: each round's (and each test chunk's) days of both seeds go out as one batch of 2 x P;
+    # then one AON reference day per group.
     cav_batches = [len(b) for b, cav in pair["executor"].batches if cav is not None]
-    assert cav_batches == [2 * P] * (ROUNDS + 10 // P)
-    assert [len(b) for b, cav in ex.batches if cav is not None] == [P] * 2 * (ROUNDS + 10 // P)
+    assert cav_batches == [2 * P] * (ROUNDS + 10 // P) + [1]
+    assert [len(b) for b, cav in ex.batches if cav is not None] == ([P] * (ROUNDS + 10 // P) + [1]) * 2
     for a, b in zip(together, alone, strict=True):
         cfg_a = json.loads((a["folder"] / "exp_config.json").read_text())
         cfg_b = json.loads((b["folder"] / "exp_config.json").read_text())
@@ -93,7 +94,7 @@ def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa:
     assert meta["seeds"] == [0, 1] and len(meta["record_parts"]) == 2
     ex = FakeExecutor()
     finals = resume_train("pair_s1", results_dir=str(tmp_path), progress=False, executor=ex)
-    assert [len(b) for b, _ in ex.batches] == [2 * P] * (ROUNDS - 1 + 10 // P)  # rounds 2-3, test
+    assert [len(b) for b, _ in ex.batches] == [2 * P] * (ROUNDS - 1 + 10 // P) + [1]  # rounds 2-3, test, AON
     for final, ref in zip(finals, pair["outs"], strict=True):
         assert final["folder"].name == ref["folder"].name
         pd.testing.assert_frame_equal(read_records(final["folder"]), read_records(ref["folder"]))
@@ -111,7 +112,7 @@ def test_human_phase_reuse_equals_own_human_phase(pair, confs, tmp_path):  # noq
     ex = FakeExecutor()
     (out,) = _train(confs, tmp_path, "reused", ex, seeds=[0], human_phase_from="src")
     assert all(cav is not None for _, cav in ex.batches)  # only CAV days (training and test) ran
-    assert len(ex.batches) == ROUNDS + 10 // P
+    assert len(ex.batches) == ROUNDS + 10 // P + 1  # + the AON reference day
     pd.testing.assert_frame_equal(read_records(out["folder"]), read_records(src))
     pd.testing.assert_frame_equal(_metrics(out["folder"]), _metrics(src))
     assert json.loads((out["folder"] / "exp_config.json").read_text())["human_phase_from"] == "src"

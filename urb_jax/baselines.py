@@ -29,13 +29,18 @@ _act = jax.jit(act, static_argnames=("params",))
 _learn = jax.jit(learn, static_argnames=("params",))
 
 
+def aon_routes(fft: np.ndarray, route_valid: np.ndarray) -> np.ndarray:
+    """Each row's minimum free-flow route (the first on ties): URB's all-or-nothing choice."""
+    return np.argmin(np.where(route_valid, fft, np.inf), axis=1).astype(np.int32)
+
+
 @dataclass(frozen=True)
 class AonPolicy:
     name: str = "aon"
     uses_observation: bool = False
 
     def init(self, key: jax.Array, ctx: CavContext) -> np.ndarray:
-        return np.argmin(np.where(ctx.route_valid, ctx.fft, np.inf), axis=1).astype(np.int32)
+        return aon_routes(ctx.fft, ctx.route_valid)
 
     def act(self, key: jax.Array, state: np.ndarray, obs: np.ndarray) -> np.ndarray:
         return state

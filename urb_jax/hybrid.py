@@ -428,11 +428,14 @@ def train_group(
 
     # ---- test: frozen greedy policies, SUMO only; S x b days per executor batch
     test_executor = MemoExecutor(executor) if cfg.reuse_identical_test_days else executor
+    first_test_choices = None
     for start_day in range(0, E, P):
         b = min(P, E - start_day)
         kt = jax.vmap(lambda k, d=start_day: jax.random.split(jax.random.fold_in(k, d)))(k_test)
         obs, actions, choices = act_greedy(runner, split_p(kt[:, 0]), real)
         choices = np.asarray(choices)[:, :b]  # [S, b, N]
+        if start_day == 0:
+            first_test_choices = choices[0, 0]
         results = test_executor.run_days(scn, choices.reshape(S * b, n), [env_seed] * (S * b), is_cav=is_cav)
         times = np.zeros((S, P, n), np.float32)
         times[:, :b] = np.stack([res.travel_time for res in results]).reshape(S, b, n)
@@ -444,12 +447,30 @@ def train_group(
                          results[i * b:(i + 1) * b], days_i, cav_index)
         bar.update(S * b, tag + "test/SUMO",
                    sumo_tCAV=float(times[:, :b][..., cav_index].mean()) if cav_index.size else 0.0)
+    aon = (aon_same_humans(scn, first_test_choices, is_cav, test_executor, env_seed)
+           if first_test_choices is not None else {})
     bar.close()
     for writer in writers:
         writer.close()
     return [{"rounds": log, "human_days": H, "sumo_training_days": T_sumo, "n_rounds": n_rounds,
              "surrogate_days": n_rounds * sur_per_round, "alg_config": dataclasses.asdict(alg_config),
-             "seeds_together": S} for log in rounds_logs]
+             "seeds_together": S, "aon_same_humans": aon} for log in rounds_logs]
+
+
+def aon_same_humans(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray, executor: Any,
+                    env_seed: int) -> dict[str, float]:
+    """One SUMO day: `choices`' humans, the CAVs on their minimum free-flow route.
+
+    The quality bar is "t_CAV at or below AON's", and with frozen deterministic humans (every URB
+    config1..5 run) this day *is* URB's AON baseline on the same test humans, so each run reports
+    it next to its own t_CAV (exp_config.json) at the cost of one SUMO day. Not a run day: it is
+    not in the records or in any metric."""
+    from urb_jax.baselines import aon_routes
+
+    mixed = np.where(is_cav, aon_routes(scn.fft, scn.route_valid), choices)
+    res = executor.run_days(scn, mixed[None], [env_seed], is_cav=is_cav)[0]
+    return {"t_CAV": float(res.travel_time[is_cav].mean()) if is_cav.any() else float("nan"),
+            "t_HDV": float(res.travel_time[~is_cav].mean()) if (~is_cav).any() else float("nan")}
 
 
 def _record_days(writer: Any, first_day_minus1: int, phase: str, choices: np.ndarray, is_cav: np.ndarray,

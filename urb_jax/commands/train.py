@@ -70,6 +70,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"results: {out['folder']}  ({out['wall_time_s']:.1f} s)")
         for key in METRIC_KEYS:
             print(f"  {key:18s} {m[key]:.4f}" if m[key] == m[key] else f"  {key:18s} N/A")
+        aon = out.get("summary", {}).get("aon_same_humans") or {}
+        if "t_CAV" in aon:
+            print(f"  {'t_CAV_AON':18s} {aon['t_CAV']:.4f}  (AON on the same test humans, one SUMO day)")
     return 0
 
 
@@ -255,7 +258,7 @@ def _finish(folder: Path, config: dict[str, Any], summary: dict[str, Any], task:
     _write_rounds(folder, summary["rounds"])
     config.update(status="done", wall_time_s=round(wall, 2), training_days=T, sumo_training_days=T,
                   surrogate_training_days=summary["surrogate_days"], rounds=summary["n_rounds"],
-                  alg_config_values=summary["alg_config"])
+                  alg_config_values=summary["alg_config"], aon_same_humans=summary.get("aon_same_humans"))
     write_json(folder / "exp_config.json", config)
     return {"folder": folder, "metrics": metrics, "wall_time_s": wall, "summary": summary}
 
