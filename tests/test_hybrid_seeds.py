@@ -76,6 +76,18 @@ def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa
         cols = ["sur_time_cav", "sumo_time_cav", "surrogate_mape"]
         pd.testing.assert_frame_equal(pd.read_csv(a["folder"] / "rounds.csv")[cols],
                                       pd.read_csv(b["folder"] / "rounds.csv")[cols])
+    # the CLI's one-line seed summary, against each seed's written metrics and AON reference day
+    from urb_jax.commands.train import seed_summary
+
+    t = [float(_metrics(o["folder"])["t_CAV"].iloc[0]) for o in together]
+    aon = [json.loads((o["folder"] / "exp_config.json").read_text())["aon_same_humans"]["t_CAV"]
+           for o in together]
+    assert aon[0] == aon[1]  # one AON day per group: both seeds share the test humans
+    wins = sum(float(_metrics(o["folder"])["winrate"].iloc[0]) for o in together)
+    assert seed_summary(together) == (
+        f"2 seeds: t_CAV {np.mean(t):.4f} (sd {np.std(t, ddof=1):.4f}), at or below AON "
+        f"{sum(x <= aon[0] for x in t)}/2, below t_pre {wins:.0f}/2")
+    assert seed_summary(together[:1]) is None
     r0, r1 = (read_records(o["folder"]) for o in together)
     assert not np.array_equal(r0[r0["day"] > H]["action"], r1[r1["day"] > H]["action"])  # seeds differ
 

@@ -10,6 +10,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from urb_jax.commands.common import add_network_flags
 
 METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_learning", "delta_V")
@@ -73,7 +75,25 @@ def run(args: argparse.Namespace) -> int:
         aon = out.get("summary", {}).get("aon_same_humans") or {}
         if "t_CAV" in aon:
             print(f"  {'t_CAV_AON':18s} {aon['t_CAV']:.4f}  (AON on the same test humans, one SUMO day)")
+    line = seed_summary(outs)
+    if line:
+        print(line)
     return 0
+
+
+def seed_summary(outs: list[dict[str, Any]]) -> str | None:
+    """One line over the seeds of a run, in the terms of the quality bar: mean and sd of t_CAV, how
+    many seeds are at or below AON on their test humans, and how many beat t_pre (WR)."""
+    done = [o for o in outs if o.get("metrics")]
+    if len(done) < 2:
+        return None
+    t = np.array([o["metrics"]["t_CAV"] for o in done])
+    wins = sum(o["metrics"]["t_CAV"] < o["metrics"]["t_pre"] for o in done)
+    aon = [(o.get("summary") or {}).get("aon_same_humans", {}).get("t_CAV") for o in done]
+    vs_aon = (f", at or below AON {sum(x <= a for x, a in zip(t, aon, strict=True))}/{len(done)}"
+              if all(a is not None for a in aon) else "")
+    return (f"{len(done)} seeds: t_CAV {t.mean():.4f} (sd {t.std(ddof=1):.4f}){vs_aon}, "
+            f"below t_pre {wins}/{len(done)}")
 
 
 def _setup(cfg: dict[str, Any]):
