@@ -11,6 +11,9 @@ and the CAVs' t_CAV is one SUMO day. Rows (all SUMO, same seed):
                      traffic at all; no routing of the CAVs among the humans can get near it
   --sumo-binary      the test day exported (urb_jax.day_export) and run by another SUMO build's
                      CLI, e.g. an older eclipse-sumo wheel unpacked with `pip install --target`
+  --deviations N     N random CAVs each try every other route alone (one SUMO day each, a pool
+                     of --workers): is the test day a Nash equilibrium of the selfish reward in
+                     SUMO? Prints how many CAVs could gain by switching, and how much.
 """
 
 from __future__ import annotations
@@ -33,11 +36,47 @@ def cavs_only(scn, idx: np.ndarray):
                                agent_kind=tuple(scn.agent_kind[i] for i in idx))
 
 
+def unilateral_deviations(scn, choices, is_cav, base_times, seed: int, n: int, workers: int) -> str:
+    """One SUMO day per (sampled CAV, other valid route), everyone else as on the test day."""
+    from sumo_bridge import SumoPool
+
+    rng = np.random.default_rng(0)
+    cavs = rng.choice(np.flatnonzero(is_cav), size=min(n, int(is_cav.sum())), replace=False)
+    days, who = [], []
+    for i in cavs:
+        for k in np.flatnonzero(scn.route_valid[i]):
+            if k != choices[i]:
+                d = choices.copy()
+                d[i] = k
+                days.append(d)
+                who.append(i)
+    pool = SumoPool(workers)
+    try:
+        res = pool.run_days(scn, np.stack(days), [seed] * len(days), is_cav=is_cav)
+    finally:
+        pool.close()
+    best = {i: base_times[i] for i in cavs}
+    team = []  # the CAV mean of each deviation day
+    for i, r in zip(who, res, strict=True):
+        best[i] = min(best[i], r.travel_time[i])
+        team.append(r.travel_time[is_cav].mean())
+    gain = np.array([base_times[i] - best[i] for i in cavs])
+    up = gain > 1e-9
+    team_gain = base_times[is_cav].mean() - np.array(team)
+    return (f"unilateral deviations, {len(cavs)} CAVs, {len(days)} SUMO days:\n"
+            f"  selfish: {int(up.sum())} CAVs could cut their own time by switching "
+            f"(mean gain {gain[up].mean() if up.any() else 0.0:.3f} min, max {gain.max():.3f})\n"
+            f"  team: {int((team_gain > 1e-9).sum())} of the switches lower the CAV mean "
+            f"(best by {max(team_gain.max(), 0.0):.4f} min)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run")
     ap.add_argument("--networks-dir", default=None)
     ap.add_argument("--sumo-binary", nargs="*", default=[])
+    ap.add_argument("--deviations", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
     cfg = run_config(args.run)
     seed, H = int(cfg["env_seed"]), int(cfg["human_learning_episodes"])
@@ -67,6 +106,9 @@ def main() -> None:
             rou.write_text(day_routes_xml(scn, choices, is_cav))
             t = cli_travel_times(scn, rou, seed, b)
         rows.append((f"policy on {b}", t[is_cav].mean(), t[~is_cav].mean()))
+    if args.deviations:
+        print(unilateral_deviations(scn, choices, is_cav, pol.travel_time, seed, args.deviations,
+                                    args.workers))
     print(f"{scn.name}: {scn.n_agents} agents, {len(idx)} CAVs, run {args.run}")
     print(f"| {'SUMO day':<52} | t_CAV  | t_HDV  |")
     print(f"|{'-' * 54}|--------|--------|")
