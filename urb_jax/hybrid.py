@@ -461,8 +461,9 @@ def aon_same_humans(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray, exec
                     env_seed: int) -> dict[str, float]:
     """One SUMO day: `choices`' humans, the CAVs on their minimum free-flow route.
 
-    The quality bar is "t_CAV at or below AON's", and with frozen deterministic humans (every URB
-    config1..5 run) this day *is* URB's AON baseline on the same test humans, so each run reports
+    The quality bar is "t_CAV at or below AON's", and with frozen deterministic humans (task
+    config1, Scenario 1) this day *is* URB's AON baseline on the same test humans (with stochastic
+    humans, AON on the first test day's human draw), so each run reports
     it next to its own t_CAV (exp_config.json) at the cost of one SUMO day. Not a run day: it is
     not in the records or in any metric."""
     from urb_jax.baselines import aon_routes
