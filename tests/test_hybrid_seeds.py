@@ -51,10 +51,11 @@ def pair(confs, tmp_path_factory):  # noqa: F811
 def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa: F811
     """Each seed of a vmapped 2-seed run gets exactly the SUMO choices, records and metrics of the
     same seed trained alone (`max_vmapped_seeds: 1` trains the two seeds one after another, each a
-    group of one). Exact equality holds because every seed's randomness flows from its own key and
-    XLA computes each vmapped row with the same arithmetic as the unbatched program on CPU (no
-    cross-seed reduction); if a backend ever reorders a batched reduction, this test is where it
-    shows."""
+    group of one). Exact equality holds because every seed's randomness flows from its own key, no
+    computation mixes seeds, and at these shapes XLA's batched CPU kernels round like the unbatched
+    ones. At ingolstadt's shapes (414 per-CAV networks) they do not, and training amplifies the
+    last-bit differences (docs/hybrid.md, "Equivalence"); a mixing bug would fail here, rounding
+    at large shapes cannot."""
     ex = FakeExecutor()
     alone = _train(_with_conf(confs, tmp_path, max_vmapped_seeds=1), tmp_path, "alone", ex, seeds=[0, 1])
     together = pair["outs"]
