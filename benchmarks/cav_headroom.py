@@ -8,7 +8,7 @@ and the CAVs' t_CAV is one SUMO day. Rows (all SUMO, same seed):
   AON                CAVs on their minimum free-flow route, same humans (URB's AON baseline)
   CAVs pre-mutation  the CAV agents' own mean time over the last 50 human days (they were humans)
   CAVs only: ...     the humans removed from the day: what the CAVs' routes cost with no human
-                     traffic at all; no routing of the CAVs among the humans can get near it
+                     traffic at all, a rough floor for any routing of the CAVs among the humans
   --sumo-binary      the test day exported (urb_jax.day_export) and run by another SUMO build's
                      CLI, e.g. an older eclipse-sumo wheel unpacked with `pip install --target`
   --deviations N     N random CAVs each try every other route alone (one SUMO day each, a pool
@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from sumo_bridge import run_day
+from urb_jax.baselines import aon_routes
 from urb_jax.day_export import cli_travel_times, day_routes_xml, recorded_day, run_config, scenario_of_run
 from urb_jax.results import read_records
 
@@ -86,7 +87,7 @@ def main() -> None:
     pre = rec[(rec["day"] > H - 50) & (rec["day"] <= H)].pivot(index="day", columns="agent",
                                                                   values="travel_time")[scn.agent_id]
     pre = pre.to_numpy()
-    aon = np.argmin(np.where(scn.route_valid, scn.fft, np.inf), axis=1)
+    aon = aon_routes(scn.fft, scn.route_valid)
     idx = np.flatnonzero(is_cav)
     sub = cavs_only(scn, idx)
     rows = [("t_pre (all agents, last 50 human days)", pre.mean(), None)]
