@@ -72,13 +72,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"results: {out['folder']}  ({out['wall_time_s']:.1f} s)")
         for key in METRIC_KEYS:
             print(f"  {key:18s} {m[key]:.4f}" if m[key] == m[key] else f"  {key:18s} N/A")
-        aon = out.get("summary", {}).get("aon_same_humans") or {}
-        if "t_CAV" in aon:
-            print(f"  {'t_CAV_AON':18s} {aon['t_CAV']:.4f}  (AON on the same test humans, one SUMO day)")
+        aon = aon_t_cav(out)
+        if aon is not None:
+            print(f"  {'t_CAV_AON':18s} {aon:.4f}  (AON on the same test humans, one SUMO day)")
     line = seed_summary(outs)
     if line:
         print(line)
     return 0
+
+
+def aon_t_cav(out: dict[str, Any]) -> float | None:
+    """The run's AON reference day t_CAV (hybrid.aon_same_humans), if it has one."""
+    return ((out.get("summary") or {}).get("aon_same_humans") or {}).get("t_CAV")
 
 
 def seed_summary(outs: list[dict[str, Any]]) -> str | None:
@@ -88,8 +93,8 @@ def seed_summary(outs: list[dict[str, Any]]) -> str | None:
     if len(done) < 2:
         return None
     t = np.array([o["metrics"]["t_CAV"] for o in done])
-    wins = sum(o["metrics"]["t_CAV"] < o["metrics"]["t_pre"] for o in done)
-    aon = [(o.get("summary") or {}).get("aon_same_humans", {}).get("t_CAV") for o in done]
+    wins = sum(o["metrics"]["winrate"] == 1.0 for o in done)  # per seed, urb_jax.metrics' WR
+    aon = [aon_t_cav(o) for o in done]
     vs_aon = (f", at or below AON {sum(x <= a for x, a in zip(t, aon, strict=True))}/{len(done)}"
               if all(a is not None for a in aon) else "")
     return (f"{len(done)} seeds: t_CAV {t.mean():.4f} (sd {t.std(ddof=1):.4f}){vs_aon}, "
