@@ -19,7 +19,6 @@ and the CAVs' t_CAV is one SUMO day. Rows (all SUMO, same seed):
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import tempfile
 from pathlib import Path
 
@@ -29,12 +28,6 @@ from sumo_bridge import run_day
 from urb_jax.baselines import aon_routes
 from urb_jax.day_export import cli_travel_times, day_routes_xml, recorded_day, run_config, scenario_of_run
 from urb_jax.results import read_records
-
-
-def cavs_only(scn, idx: np.ndarray):
-    fields = ("agent_id", "agent_od", "agent_origin", "agent_destination", "agent_depart")
-    return dataclasses.replace(scn, **{f: getattr(scn, f)[idx] for f in fields},
-                               agent_kind=tuple(scn.agent_kind[i] for i in idx))
 
 
 def unilateral_deviations(scn, choices, is_cav, base_times, seed: int, n: int, workers: int) -> str:
@@ -89,7 +82,7 @@ def main() -> None:
     pre = pre.to_numpy()
     aon = aon_routes(scn.fft, scn.route_valid)
     idx = np.flatnonzero(is_cav)
-    sub = cavs_only(scn, idx)
+    sub = scn.with_agents(idx)  # the CAVs alone: every human removed from the day
     rows = [("t_pre (all agents, last 50 human days)", pre.mean(), None)]
     rows.append(("CAVs pre-mutation (same agents as humans)", pre[:, is_cav].mean(), None))
     pol = run_day(scn, choices, seed=seed, is_cav=is_cav)

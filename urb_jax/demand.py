@@ -8,8 +8,6 @@ all enter SUMO at the same second. Routes are per OD, so copies reuse their orig
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from urb_jax.errors import ConfigError
@@ -53,13 +51,5 @@ def scale_demand(
     ids = np.where(copy, int(scn.agent_id.max()) + 1 + np.cumsum(copy) - 1, ids)
     order = np.lexsort((ids, depart))
     src, depart, ids = src[order], depart[order], ids[order]
-    return dataclasses.replace(
-        scn,
-        agent_id=ids.astype(scn.agent_id.dtype),
-        agent_od=scn.agent_od[src],
-        agent_origin=scn.agent_origin[src],
-        agent_destination=scn.agent_destination[src],
-        agent_depart=depart.astype(scn.agent_depart.dtype),
-        agent_kind=tuple(scn.agent_kind[i] for i in src),
-        name=f"{scn.name}",
-    )
+    return scn.with_agents(src, agent_id=ids.astype(scn.agent_id.dtype),
+                           agent_depart=depart.astype(scn.agent_depart.dtype))

@@ -16,7 +16,7 @@ import logging
 import os
 import tempfile
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -121,6 +121,14 @@ class Scenario:
     def route_edge_ids(self, od: int, k: int) -> list[str]:
         n = int(self.od_route_len[od, k])
         return [self.edge_ids[e] for e in self.od_routes[od, k, :n]]
+
+    def with_agents(self, idx: np.ndarray, **overrides: object) -> Scenario:
+        """The same network and routes with agents `idx`, in that order (a subset, a resampled
+        demand); `overrides` replace per-agent fields afterwards (e.g. new ids for copies)."""
+        arrays = ("agent_id", "agent_od", "agent_origin", "agent_destination", "agent_depart")
+        picked: dict[str, object] = {f: getattr(self, f)[idx] for f in arrays}
+        picked["agent_kind"] = tuple(self.agent_kind[i] for i in idx)
+        return replace(self, **{**picked, **overrides})
 
     def summary(self) -> dict[str, object]:
         return {
