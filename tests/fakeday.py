@@ -1,4 +1,5 @@
-"""A deterministic stand-in for a SUMO day: route time = FFT * (1 + load / 20) per (OD, route)."""
+"""A deterministic stand-in for a SUMO day: route time = FFT * (1 + load / 20) per (OD, route),
+SUMO duration 2 s shorter (as `sumo_bridge` records them)."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ class FakeDay:
         load = counts[inv] - 1
         tt = scenario.fft[rows, choices] * (1.0 + load / 20.0)
         length = scenario.od_route_length[od, choices]
-        dur = tt * 60.0
+        dur = tt * 60.0 - 2.0  # SUMO's duration lacks RouteRL's 2 s recording lag (sumo_bridge)
         return DayResult(
             travel_time=tt, duration=dur, route_length=length, mean_speed=length / dur,
             time_loss=np.zeros(n), depart_delay=np.zeros(n), status=np.full(n, ARRIVED, np.int8),

@@ -85,9 +85,11 @@ def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa
            for o in together]
     assert aon[0] == aon[1]  # one AON day per group: both seeds share the test humans
     wins = sum(float(_metrics(o["folder"])["winrate"].iloc[0]) for o in together)
+    dur = [float(_metrics(o["folder"])["t_CAV_duration"].iloc[0]) for o in together]
     assert seed_summary(together) == (
         f"2 seeds: t_CAV {np.mean(t):.4f} (sd {np.std(t, ddof=1):.4f}), at or below AON "
-        f"{sum(x <= aon[0] for x in t)}/2, below t_pre {wins:.0f}/2")
+        f"{sum(x <= aon[0] for x in t)}/2, below t_pre {wins:.0f}/2; "
+        f"in SUMO duration t_CAV {np.mean(dur):.4f}")
     assert seed_summary(together[:1]) is None
     r0, r1 = (read_records(o["folder"]) for o in together)
     assert not np.array_equal(r0[r0["day"] > H]["action"], r1[r1["day"] > H]["action"])  # seeds differ

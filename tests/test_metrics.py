@@ -82,3 +82,23 @@ def test_every_pre_day_counts_and_window_is_50_days():
                  time_loss=0.0, depart_delay=0.0, status=0) for d in range(1, 63)]
     m = compute_metrics(pd.DataFrame(rows), 60, 1)
     assert m["t_pre"] == pytest.approx(np.mean(np.arange(11, 61)))
+
+
+def test_duration_columns_average_each_agent_first_and_skip_removed_trips():
+    """The published tables' measure: SUMO tripinfo duration, per agent over the slice's days,
+    then over agents, a removed trip (no duration) skipped. Agent 0 stays an HDV, agent 1 is a
+    CAV from day 3; H = 2, T = 1, test days 4-5; agent 0 is removed on day 5."""
+    dur = {0: [120.0, 180.0, 60.0, 60.0, np.nan], 1: [240.0, 300.0, 60.0, 120.0, 240.0]}
+    rows = [dict(day=d, agent=a, kind="CAV" if (a == 1 and d > 2) else "HDV", action=0,
+                 travel_time=30.0 if np.isnan(dur[a][d - 1]) else dur[a][d - 1] / 60 + 0.05,
+                 route_length=1.0, speed=1.0, duration=dur[a][d - 1], time_loss=0.0, depart_delay=0.0,
+                 status=1 if np.isnan(dur[a][d - 1]) else 0) for a in (0, 1) for d in range(1, 6)]
+    m = compute_metrics(pd.DataFrame(rows), 2, 1)
+    assert m["t_pre_duration"] == pytest.approx((150 + 270) / 2 / 60)
+    assert m["t_HDV_pre_duration"] == pytest.approx(150 / 60)
+    assert m["t_CAV_duration"] == pytest.approx(180 / 60)
+    assert m["t_HDV_test_duration"] == pytest.approx(60 / 60)  # day 5 removed: skipped, not 30 min
+    # per agent first: (60 + 180) / 2 s, not the mean of the day means (90 and 240 s)
+    assert m["t_test_duration"] == pytest.approx(120 / 60)
+    # the travel_time columns keep URB's current measure (the removed trip charged 30 min)
+    assert m["t_HDV_test"] == pytest.approx((60 / 60 + 0.05 + 30.0) / 2)

@@ -470,8 +470,11 @@ def aon_same_humans(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray, exec
 
     mixed = np.where(is_cav, aon_routes(scn.fft, scn.route_valid), choices)
     res = executor.run_days(scn, mixed[None], [env_seed], is_cav=is_cav)[0]
-    return {"t_CAV": float(res.travel_time[is_cav].mean()) if is_cav.any() else float("nan"),
-            "t_HDV": float(res.travel_time[~is_cav].mean()) if (~is_cav).any() else float("nan")}
+    nan = float("nan")
+    return {"t_CAV": float(res.travel_time[is_cav].mean()) if is_cav.any() else nan,
+            "t_HDV": float(res.travel_time[~is_cav].mean()) if (~is_cav).any() else nan,
+            # the published tables' measure (urb_jax.metrics.DURATION_COLUMNS)
+            "t_CAV_duration": float(np.nanmean(res.duration[is_cav]) / 60) if is_cav.any() else nan}
 
 
 def _record_days(writer: Any, first_day_minus1: int, phase: str, choices: np.ndarray, is_cav: np.ndarray,

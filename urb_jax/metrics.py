@@ -10,7 +10,9 @@ last day. Differences from URB's code (the paper wins; see docs/metrics.md):
   (URB code: mean over agents of max - min over train days);
 * every day of a slice is counted; speeds and mileages are per-day means over arrived trips
   (SUMO's statistic output definition) computed from the per-agent rows;
-* delta_V / delta_L (paper) are added as columns.
+* delta_V / delta_L (paper) are added as columns;
+* the `*_duration` columns repeat the travel-time means with SUMO's own trip duration, the measure
+  of URB's metric code when the paper's tables were made (see `DURATION_COLUMNS`).
 """
 
 from __future__ import annotations
@@ -29,7 +31,17 @@ BENCHMARK_COLUMNS = [
     "winrate", "cost_of_learning", "cost_of_learning_humans", "cost_of_learning_CAVs",
     "avg_time_lost", "avg_human_time_lost", "avg_CAV_time_lost", "diff_sumo_routerl",
     "delta_V", "delta_L", "instability_humans_test", "instability_CAVs_test",
+    "t_pre_duration", "t_test_duration", "t_CAV_duration", "t_HDV_pre_duration", "t_HDV_test_duration",
 ]
+# The published tables (URB README / paper: t_pre 3.15, 2.80, 4.21; AON t_CAV 3.01, 2.76, 4.37)
+# came from an earlier analysis/metrics.py that averaged SUMO's tripinfo `duration` (arrival -
+# actual departure, s): per agent over the slice's days, then over agents, removed vehicles
+# skipped. Today's URB code (and `t_pre` etc. above) uses RouteRL's travel_time, which adds the
+# insertion delay and RouteRL's 2 s recording lag, 2-3.5 s per trip. Compare with published
+# numbers in this measure.
+DURATION_COLUMNS = {"t_pre_duration": ("pre", "every"), "t_test_duration": ("test", "every"),
+                    "t_CAV_duration": ("test", "cav"), "t_HDV_pre_duration": ("pre", "hdv"),
+                    "t_HDV_test_duration": ("test", "hdv")}
 
 
 def _nan() -> float:
@@ -49,6 +61,14 @@ def _slice_mean(wide: pd.DataFrame, days: np.ndarray, agents: np.ndarray) -> flo
     if len(days) == 0 or len(agents) == 0:
         return _nan()
     return float(wide.loc[days, agents].mean(axis=1).mean())
+
+
+def _agent_mean(wide: pd.DataFrame, days: np.ndarray, agents: np.ndarray) -> float:
+    """Mean over `agents` of each agent's mean over `days`, NaN cells (removed trips) skipped:
+    the earlier URB metric code's `df[cols].mean(axis=0).mean()`."""
+    if len(days) == 0 or len(agents) == 0:
+        return _nan()
+    return float(wide.loc[days, agents].mean(axis=0).mean())
 
 
 def slices(days: np.ndarray, human_days: int, training_days: int) -> dict[str, np.ndarray]:
@@ -134,6 +154,10 @@ def compute_metrics(records: pd.DataFrame, human_days: int, training_days: int) 
     m["diff_sumo_routerl"] = (stat("duration", "test", 1 / 60) - m["t_test"]) if len(s["test"]) else _nan()
     m["delta_V"] = m["avg_speed_test"] - m["avg_speed_pre"]
     m["delta_L"] = m["avg_mileage_test"] - m["avg_mileage_pre"]
+    dur = _wide(records, "duration") / 60.0
+    who = {"every": every, "cav": cav, "hdv": hdv}
+    for col, (sl, group) in DURATION_COLUMNS.items():
+        m[col] = _agent_mean(dur, s[sl], who[group])
     vec = vector_metrics(records, human_days, training_days)
     test_vec = vec[vec["episode"].isin(s["test"])]
     m["instability_humans_test"] = float(test_vec["instability_humans"].mean()) if len(hdv) else _nan()

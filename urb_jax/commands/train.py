@@ -75,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
         aon = aon_t_cav(out)
         if aon is not None:
             print(f"  {'t_CAV_AON':18s} {aon:.4f}  (AON on the same test humans, one SUMO day)")
+        print(f"  {'in SUMO duration':18s} t_pre {m['t_pre_duration']:.4f}, t_CAV {m['t_CAV_duration']:.4f}"
+              f"{aon_duration(out)}  (the measure of URB's published tables)")
     line = seed_summary(outs)
     if line:
         print(line)
@@ -84,6 +86,12 @@ def run(args: argparse.Namespace) -> int:
 def aon_t_cav(out: dict[str, Any]) -> float | None:
     """The run's AON reference day t_CAV (hybrid.aon_same_humans), if it has one."""
     return ((out.get("summary") or {}).get("aon_same_humans") or {}).get("t_CAV")
+
+
+def aon_duration(out: dict[str, Any]) -> str:
+    """', AON x' in the published tables' measure, or '' for a run without the AON day."""
+    d = ((out.get("summary") or {}).get("aon_same_humans") or {}).get("t_CAV_duration")
+    return "" if d is None else f", AON {d:.4f}"
 
 
 def seed_summary(outs: list[dict[str, Any]]) -> str | None:
@@ -97,8 +105,9 @@ def seed_summary(outs: list[dict[str, Any]]) -> str | None:
     aon = [aon_t_cav(o) for o in done]
     vs_aon = (f", at or below AON {sum(x <= a for x, a in zip(t, aon, strict=True))}/{len(done)}"
               if all(a is not None for a in aon) else "")
+    dur = np.array([o["metrics"]["t_CAV_duration"] for o in done])
     return (f"{len(done)} seeds: t_CAV {t.mean():.4f} (sd {t.std(ddof=1):.4f}){vs_aon}, "
-            f"below t_pre {wins}/{len(done)}")
+            f"below t_pre {wins}/{len(done)}; in SUMO duration t_CAV {dur.mean():.4f}")
 
 
 def _setup(cfg: dict[str, Any]):
