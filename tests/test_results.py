@@ -125,3 +125,22 @@ def test_human_phase_replay_matches_a_fresh_run(tmp_path):
     with pytest.raises(UrbJaxError, match="day 2"):
         run_baseline(model="random", results_dir=str(tmp_path), exp_id="tampered", progress=False,
                      day_fn=FakeDay(), task_overrides=TINY, human_phase_from="src")
+
+
+def test_metrics_command_recomputes_a_finished_runs_columns(tmp_path, capsys):
+    """`urb-jax metrics RUN`: an older run without the duration columns gets them, equal to what
+    the run itself wrote; an unfinished run is refused with the fix."""
+    out = run_baseline(model="random", results_dir=str(tmp_path), exp_id="old", progress=False,
+                       day_fn=FakeDay(), task_overrides=TINY)
+    path = out["folder"] / "metrics" / "BenchmarkMetrics.csv"
+    written = pd.read_csv(path)
+    assert written["t_CAV_duration"].iloc[0] == pytest.approx(written["t_CAV"].iloc[0] - 2 / 60)
+    written.drop(columns=[c for c in written.columns if c.endswith("_duration")]).to_csv(path, index=False)
+    assert main(["metrics", str(out["folder"])]) == 0
+    pd.testing.assert_frame_equal(pd.read_csv(path), written)
+    assert "t_CAV_duration" in capsys.readouterr().out
+    cfg = out["folder"] / "exp_config.json"
+    cfg.write_text(json.dumps({**json.loads(cfg.read_text()), "status": "running"}))
+    assert main(["metrics", str(out["folder"])]) == 2
+    err = capsys.readouterr().err
+    assert "exp_config.json" in err and "--resume" in err

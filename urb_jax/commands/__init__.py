@@ -11,5 +11,6 @@ COMMANDS = [
     "urb_jax.commands.baseline",
     "urb_jax.commands.leaderboard",
     "urb_jax.commands.export_day",
+    "urb_jax.commands.metrics",
     "urb_jax.commands.train",
 ]

@@ -1,0 +1,44 @@
+"""`urb-jax metrics`: recompute a finished run's metrics from its records.
+
+Runs written before a metric column existed (e.g. the `*_duration` columns) get it without
+re-simulating anything; the result is what `urb-jax train` / `baseline` would write today."""
+
+from __future__ import annotations
+
+import argparse
+
+SHOWN = ("t_pre", "t_CAV", "t_pre_duration", "t_CAV_duration", "winrate")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser(
+        "metrics", help="recompute metrics/BenchmarkMetrics.csv of finished runs from their records")
+    parser.add_argument("runs", nargs="+", help="run folders (results/<exp_id>)")
+    parser.set_defaults(func=run)
+
+
+def recompute(folder: str) -> dict[str, float]:
+    """Rewrite FOLDER/metrics/{Benchmark,Vector}Metrics.csv (atomically) from records.parquet."""
+    from pathlib import Path
+
+    from urb_jax.day_export import run_config
+    from urb_jax.errors import UrbJaxError
+    from urb_jax.metrics import compute_metrics, vector_metrics
+    from urb_jax.results import read_records, write_metrics
+
+    cfg = run_config(folder)
+    if cfg.get("status") != "done" or "training_days" not in cfg:
+        raise UrbJaxError(f"{folder}/exp_config.json: status {cfg.get('status')!r}, not a finished run. "
+                          f"Fix: finish it first (`urb-jax train --resume {Path(folder).name}`).")
+    records = read_records(folder)
+    H, T = int(cfg["human_days"]), int(cfg["training_days"])
+    metrics = compute_metrics(records, H, T)
+    write_metrics(Path(folder), metrics, vector_metrics(records, H, T))
+    return metrics
+
+
+def run(args: argparse.Namespace) -> int:
+    for folder in args.runs:
+        m = recompute(folder)
+        print(f"{folder}: " + ", ".join(f"{k} {m[k]:.4f}" for k in SHOWN))
+    return 0
