@@ -17,7 +17,8 @@ from urb_jax.errors import UrbJaxError
 
 KEYS = ["network", "algorithm", "task_config", "env_config"]
 SHOWN = ["t_pre", "t_CAV", "t_HDV_test", "t_test", "cost_of_learning", "delta_V", "delta_L",
-         "CAV_advantage", "Effect_of_change", "Effect_of_remaining"]
+         "CAV_advantage", "Effect_of_change", "Effect_of_remaining",
+         "t_pre_duration", "t_CAV_duration"]  # the published tables' measure (docs/metrics.md)
 
 
 def collect(results_dir: str | os.PathLike) -> pd.DataFrame:
