@@ -12,7 +12,7 @@ last day. Differences from URB's code (the paper wins; see docs/metrics.md):
   (SUMO's statistic output definition) computed from the per-agent rows;
 * delta_V / delta_L (paper) are added as columns;
 * the `*_duration` columns repeat the travel-time means with SUMO's own trip duration, the measure
-  of URB's metric code when the paper's tables were made (see `DURATION_COLUMNS`).
+  of the URB metric code that the published tables fit (see `DURATION_COLUMNS`).
 """
 
 from __future__ import annotations
@@ -34,11 +34,11 @@ BENCHMARK_COLUMNS = [
     "t_pre_duration", "t_test_duration", "t_CAV_duration", "t_HDV_pre_duration", "t_HDV_test_duration",
 ]
 # The published tables (URB README / paper: t_pre 3.15, 2.80, 4.21; AON t_CAV 3.01, 2.76, 4.37)
-# came from an earlier analysis/metrics.py that averaged SUMO's tripinfo `duration` (arrival -
-# actual departure, s): per agent over the slice's days, then over agents, removed vehicles
-# skipped. Today's URB code (and `t_pre` etc. above) uses RouteRL's travel_time, which adds the
-# insertion delay and RouteRL's 2 s recording lag, 2-3.5 s per trip. Compare with published
-# numbers in this measure.
+# fit an earlier analysis/metrics.py, which averaged SUMO's tripinfo `duration` (arrival - actual
+# departure, s): per agent over the slice's days, then over agents, removed vehicles skipped
+# (docs/metrics.md has the numbers). Today's URB code (and `t_pre` etc. above) uses RouteRL's
+# travel_time, which adds the insertion delay and RouteRL's 2 s recording lag, 2-3.5 s per trip.
+# Compare with published numbers in this measure.
 DURATION_COLUMNS = {"t_pre_duration": ("pre", "every"), "t_test_duration": ("test", "every"),
                     "t_CAV_duration": ("test", "cav"), "t_HDV_pre_duration": ("pre", "hdv"),
                     "t_HDV_test_duration": ("test", "hdv")}

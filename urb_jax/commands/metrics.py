@@ -28,8 +28,10 @@ def recompute(folder: str) -> dict[str, float]:
 
     cfg = run_config(folder)
     if cfg.get("status") != "done" or "training_days" not in cfg:
+        fix = ("re-run the baseline" if "baseline_model" in cfg
+               else f"finish it first (`urb-jax train --resume {Path(folder).name}`)")
         raise UrbJaxError(f"{folder}/exp_config.json: status {cfg.get('status')!r}, not a finished run. "
-                          f"Fix: finish it first (`urb-jax train --resume {Path(folder).name}`).")
+                          f"Fix: {fix}.")
     records = read_records(folder)
     H, T = int(cfg["human_days"]), int(cfg["training_days"])
     metrics = compute_metrics(records, H, T)

@@ -83,14 +83,14 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def aon_t_cav(out: dict[str, Any]) -> float | None:
-    """The run's AON reference day t_CAV (hybrid.aon_same_humans), if it has one."""
-    return ((out.get("summary") or {}).get("aon_same_humans") or {}).get("t_CAV")
+def aon_t_cav(out: dict[str, Any], key: str = "t_CAV") -> float | None:
+    """The run's AON reference day (hybrid.aon_same_humans) t_CAV, or `key`, if it has one."""
+    return ((out.get("summary") or {}).get("aon_same_humans") or {}).get(key)
 
 
 def aon_duration(out: dict[str, Any]) -> str:
     """', AON x' in the published tables' measure, or '' for a run without the AON day."""
-    d = ((out.get("summary") or {}).get("aon_same_humans") or {}).get("t_CAV_duration")
+    d = aon_t_cav(out, "t_CAV_duration")
     return "" if d is None else f", AON {d:.4f}"
 
 
