@@ -144,4 +144,4 @@ def test_metrics_command_recomputes_a_finished_runs_columns(tmp_path, capsys):
     cfg.write_text(json.dumps({**json.loads(cfg.read_text()), "status": "running"}))
     assert main(["metrics", str(out["folder"])]) == 2
     err = capsys.readouterr().err
-    assert "exp_config.json" in err and "--resume" in err
+    assert "exp_config.json" in err and "Fix: re-run the baseline" in err
