@@ -196,6 +196,18 @@ def write_metrics(folder: Path, metrics: dict[str, float], vector: pd.DataFrame)
     atomic_write_bytes(out / "VectorMetrics.csv", vector.to_csv(index=False).encode())
 
 
+def write_run_metrics(folder: Path, human_days: int,
+                      training_days: int) -> tuple[dict[str, float], pd.DataFrame]:
+    """A run's metric files from its records (every run's last step; `urb-jax metrics` redoes it).
+    Returns the metrics and the records."""
+    from urb_jax.metrics import compute_metrics, vector_metrics
+
+    records = read_records(folder)
+    metrics = compute_metrics(records, human_days, training_days)
+    write_metrics(Path(folder), metrics, vector_metrics(records, human_days, training_days))
+    return metrics, records
+
+
 def write_plots(folder: Path, records: pd.DataFrame, human_days: int, training_days: int,
                 smooth_by: int = 1) -> list[Path]:
     """Mean travel time per day by group with phase backgrounds; CAV vs HDV test distributions."""

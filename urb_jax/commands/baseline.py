@@ -59,16 +59,14 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     from urb_jax.configio import to_dict
     from urb_jax.demand import scale_demand
     from urb_jax.experiment import run_experiment
-    from urb_jax.metrics import compute_metrics, vector_metrics
     from urb_jax.network import DEFAULT_NETWORK
     from urb_jax.results import (
         RecordsWriter,
         create_results_dir,
-        read_records,
         versions,
         write_json,
-        write_metrics,
         write_plots,
+        write_run_metrics,
     )
     from urb_jax.scenario import load_scenario
 
@@ -109,10 +107,8 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     run_experiment(scn, task, env, policy, env_seed=env_seed, day_fn=day_fn, sink=writer,
                    progress=progress)
     writer.close()
-    records = read_records(folder)
     H, T = task.human_learning_episodes, task.training_eps
-    metrics = compute_metrics(records, H, T)
-    write_metrics(folder, metrics, vector_metrics(records, H, T))
+    metrics, records = write_run_metrics(folder, H, T)
     write_plots(folder, records, H, T, smooth_by=1)
     wall = time.perf_counter() - t0
     config.update(status="done", wall_time_s=round(wall, 2))

@@ -23,8 +23,7 @@ def recompute(folder: str) -> dict[str, float]:
 
     from urb_jax.day_export import run_config
     from urb_jax.errors import UrbJaxError
-    from urb_jax.metrics import compute_metrics, vector_metrics
-    from urb_jax.results import read_records, write_metrics
+    from urb_jax.results import write_run_metrics
 
     cfg = run_config(folder)
     if cfg.get("status") != "done" or "training_days" not in cfg:
@@ -32,11 +31,7 @@ def recompute(folder: str) -> dict[str, float]:
                else f"finish it first (`urb-jax train --resume {Path(folder).name}`)")
         raise UrbJaxError(f"{folder}/exp_config.json: status {cfg.get('status')!r}, not a finished run. "
                           f"Fix: {fix}.")
-    records = read_records(folder)
-    H, T = int(cfg["human_days"]), int(cfg["training_days"])
-    metrics = compute_metrics(records, H, T)
-    write_metrics(Path(folder), metrics, vector_metrics(records, H, T))
-    return metrics
+    return write_run_metrics(Path(folder), int(cfg["human_days"]), int(cfg["training_days"]))[0]
 
 
 def run(args: argparse.Namespace) -> int:

@@ -277,17 +277,14 @@ def _train(scn, task, env, hyb, alg, alg_config, mode, seeds, env_seed, folders,
 
 
 def _finish(folder: Path, config: dict[str, Any], summary: dict[str, Any], task: Any, wall: float) -> dict:
-    from urb_jax.metrics import compute_metrics, vector_metrics
-    from urb_jax.results import read_records, write_json, write_metrics, write_plots
+    from urb_jax.results import write_json, write_plots, write_run_metrics
 
     if "stopped" in summary:  # simulated kill (tests): leave the run as a crash would
         config.update(wall_time_s=round(wall, 2))
         write_json(folder / "exp_config.json", config)
         return {"folder": folder, "stopped": summary["stopped"], "metrics": {}, "wall_time_s": wall}
-    records = read_records(folder)
     H, T = task.human_learning_episodes, summary["sumo_training_days"]
-    metrics = compute_metrics(records, H, T)
-    write_metrics(folder, metrics, vector_metrics(records, H, T))
+    metrics, records = write_run_metrics(folder, H, T)
     write_plots(folder, records, H, T, smooth_by=1)
     _write_rounds(folder, summary["rounds"])
     config.update(status="done", wall_time_s=round(wall, 2), training_days=T, sumo_training_days=T,
