@@ -189,22 +189,20 @@ def read_records(folder: str | os.PathLike, columns: Sequence[str] | None = None
     return pa.concat_tables([pq.read_table(p, columns=cols) for p in parts]).to_pandas()
 
 
-def write_metrics(folder: Path, metrics: dict[str, float], vector: pd.DataFrame) -> None:
-    out = folder / "metrics"
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / "BenchmarkMetrics.csv", pd.DataFrame([metrics]).to_csv(index=False).encode())
-    atomic_write_bytes(out / "VectorMetrics.csv", vector.to_csv(index=False).encode())
-
-
 def write_run_metrics(folder: Path, human_days: int,
                       training_days: int) -> tuple[dict[str, float], pd.DataFrame]:
-    """A run's metric files from its records (every run's last step; `urb-jax metrics` redoes it).
-    Returns the metrics and the records."""
+    """A run's metric files (metrics/BenchmarkMetrics.csv, VectorMetrics.csv, atomically) from its
+    records: every run's last step, and what `urb-jax metrics` redoes. Returns the metrics and the
+    records."""
     from urb_jax.metrics import compute_metrics, vector_metrics
 
     records = read_records(folder)
     metrics = compute_metrics(records, human_days, training_days)
-    write_metrics(Path(folder), metrics, vector_metrics(records, human_days, training_days))
+    out = Path(folder) / "metrics"
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out / "BenchmarkMetrics.csv", pd.DataFrame([metrics]).to_csv(index=False).encode())
+    atomic_write_bytes(out / "VectorMetrics.csv",
+                       vector_metrics(records, human_days, training_days).to_csv(index=False).encode())
     return metrics, records
 
 
