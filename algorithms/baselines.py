@@ -11,8 +11,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from algorithms.common import NEG, Policy, take_agents
-from urb_jax.env import RoutingEnv
+from urb_jax.algorithms.common import NEG, Policy, take_agents
+from urb_jax.game.env import RoutingEnv
 
 
 def aon_policy(env: RoutingEnv) -> Policy:

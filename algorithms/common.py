@@ -2,8 +2,8 @@
 
 Networks (flax linen, used functionally), observation scaling, OD embedding, shared or per-CAV
 parameters, invalid-action masking, exploration schedules, a jitted ring replay buffer, the
-day-collection loop (vmap over environments, lax.scan over days), typed configs and orbax
-checkpoints. Every algorithm file builds on these and stays one readable `make_train`.
+day-collection loop (vmap over environments, lax.scan over days) and typed configs. Every
+algorithm file builds on these and stays one readable `make_train`.
 
 Units: a *sample* is one CAV's decision on one day (URB's "frame" is one CAV decision too, but it
 carries every CAV's row; we keep only the real one). Update counts follow URB: per iteration
@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -25,8 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from urb_jax.configio import find_config, load_json
-from urb_jax.env import EnvState, RoutingEnv
+from urb_jax.core.configio import find_config, load_json
+from urb_jax.game.env import EnvState, RoutingEnv
 
 NEG = -1e9
 ACTIVATIONS: dict[str, Callable[[jnp.ndarray], jnp.ndarray]] = {
@@ -99,7 +98,7 @@ class MixerConfig(TorchRLCommon):
 
     def __post_init__(self) -> None:
         if self.q_scale not in ("team", "own"):
-            from urb_jax.errors import ConfigError
+            from urb_jax.core.errors import ConfigError
 
             raise ConfigError(f"key 'q_scale' is {self.q_scale!r}. Fix: use 'team' (URB) or 'own'.")
 
@@ -149,7 +148,7 @@ CONFIG_CLASSES: dict[str, type] = {
 def load_algo_config(algorithm: str, name: str = "config1") -> Any:
     """configs/algo/<algorithm>/<name>.json (or a path) -> the algorithm's typed config."""
     if algorithm not in CONFIG_CLASSES:
-        from urb_jax.errors import ConfigError
+        from urb_jax.core.errors import ConfigError
 
         raise ConfigError(f"unknown algorithm '{algorithm}'. Fix: use one of {', '.join(CONFIG_CLASSES)}.")
     return load_json(CONFIG_CLASSES[algorithm], find_config("algo", name, subdir=algorithm))
@@ -512,27 +511,6 @@ def update_plan(num_minibatches: int, minibatch_size: int, days: int, n_cavs: in
 def flatten_days(tree: Any) -> Any:
     """[T, B, ...] -> [T*B, ...]."""
     return jax.tree_util.tree_map(lambda x: x.reshape(-1, *x.shape[2:]), tree)
-
-
-# ----------------------------------------------------------------------------- checkpoints
-def save_checkpoint(path: str | Path, tree: Any) -> Path:
-    """Save a pytree with orbax at an absolute path; waits for the async save to finish."""
-    import orbax.checkpoint as ocp
-
-    path = Path(path).expanduser().resolve()
-    ckptr = ocp.StandardCheckpointer()
-    ckptr.save(path, tree, force=True)
-    ckptr.wait_until_finished()
-    return path
-
-
-def restore_checkpoint(path: str | Path, target: Any) -> Any:
-    """Restore a pytree saved by save_checkpoint; `target` gives structure, shapes and dtypes."""
-    import orbax.checkpoint as ocp
-
-    path = Path(path).expanduser().resolve()
-    abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, target)
-    return ocp.StandardCheckpointer().restore(path, abstract)
 
 
 # ----------------------------------------------------------------------------- returns, evaluation

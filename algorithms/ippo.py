@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from algorithms.common import (
+from urb_jax.algorithms.common import (
     MLP,
     Day,
     Learner,
@@ -46,7 +46,7 @@ from algorithms.common import (
     scan_train,
     take_agents,
 )
-from urb_jax.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvState, RoutingEnv
 
 
 class RunnerState(NamedTuple):

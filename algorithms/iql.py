@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from algorithms.common import (
+from urb_jax.algorithms.common import (
     Buffer,
     Day,
     IQLConfig,
@@ -42,7 +42,7 @@ from algorithms.common import (
     select_tree,
     update_plan,
 )
-from urb_jax.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvState, RoutingEnv
 
 
 class RunnerState(NamedTuple):

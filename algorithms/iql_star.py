@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from algorithms.common import (
+from urb_jax.algorithms.common import (
     Buffer,
     Day,
     IQLStarConfig,
@@ -35,7 +35,7 @@ from algorithms.common import (
     scan_train,
     select_tree,
 )
-from urb_jax.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvState, RoutingEnv
 
 
 class Sample(NamedTuple):

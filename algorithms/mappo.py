@@ -11,9 +11,9 @@ URB trains MAPPO with the cooperative reward, which the environment's reward coe
 
 from __future__ import annotations
 
-from algorithms import ippo
-from algorithms.common import Learner, PPOConfig
-from urb_jax.env import RoutingEnv
+from urb_jax.algorithms import ippo
+from urb_jax.algorithms.common import Learner, PPOConfig
+from urb_jax.game.env import RoutingEnv
 
 
 def make_policy(config: PPOConfig, env: RoutingEnv):

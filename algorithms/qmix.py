@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from algorithms.common import (
+from urb_jax.algorithms.common import (
     Buffer,
     Day,
     Learner,
@@ -47,7 +47,7 @@ from algorithms.common import (
     select_tree,
     update_plan,
 )
-from urb_jax.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvState, RoutingEnv
 
 
 class QMixer(nn.Module):

@@ -7,9 +7,9 @@ ignored, as in URB.
 
 from __future__ import annotations
 
-from algorithms import qmix
-from algorithms.common import Learner, MixerConfig
-from urb_jax.env import RoutingEnv
+from urb_jax.algorithms import qmix
+from urb_jax.algorithms.common import Learner, MixerConfig
+from urb_jax.game.env import RoutingEnv
 
 
 def make_policy(config: MixerConfig, env: RoutingEnv):

@@ -24,15 +24,21 @@ from pathlib import Path
 
 import numpy as np
 
-from sumo_bridge import run_day
-from urb_jax.baselines import aon_routes
-from urb_jax.day_export import cli_travel_times, day_routes_xml, recorded_day, run_config, scenario_of_run
-from urb_jax.results import read_records
+from urb_jax.experiment.baselines import aon_routes
+from urb_jax.results.day_export import (
+    cli_travel_times,
+    day_routes_xml,
+    recorded_day,
+    run_config,
+    scenario_of_run,
+)
+from urb_jax.results.records import read_records
+from urb_jax.sumo_bridge import run_day
 
 
 def unilateral_deviations(scn, choices, is_cav, base_times, seed: int, n: int, workers: int) -> str:
     """One SUMO day per (sampled CAV, other valid route), everyone else as on the test day."""
-    from sumo_bridge import SumoPool
+    from urb_jax.sumo_bridge import SumoPool
 
     rng = np.random.default_rng(0)
     cavs = rng.choice(np.flatnonzero(is_cav), size=min(n, int(is_cav.sum())), replace=False)

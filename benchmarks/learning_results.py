@@ -28,14 +28,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from real_surrogate import surrogate_travel_fn
 from standin import bpr_travel_time_fn
 
-from algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
-from algorithms.baselines import aon_policy, random_policy
-from algorithms.common import evaluate, load_algo_config
-from algorithms.ippo_star import days_per_update
-from urb_jax.env import RoutingEnv
-from urb_jax.mutation import draw_cavs
-from urb_jax.rewards import behaviour_coefficients
-from urb_jax.scenario import load_scenario
+from urb_jax.algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
+from urb_jax.algorithms.baselines import aon_policy, random_policy
+from urb_jax.algorithms.common import evaluate, load_algo_config
+from urb_jax.algorithms.ippo_star import days_per_update
+from urb_jax.city.scenario import load_scenario
+from urb_jax.game.env import RoutingEnv
+from urb_jax.game.mutation import draw_cavs
+from urb_jax.game.rewards import behaviour_coefficients
 
 MODULES = {"iql": iql, "ippo": ippo, "iql_star": iql_star, "ippo_star": ippo_star, "mappo": mappo,
            "qmix": qmix, "vdn": vdn}

@@ -35,14 +35,14 @@ def main() -> None:
     a = ap.parse_args()
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    from urb_jax.configio import find_config
+    from urb_jax.core.configio import find_config
 
     hyb = json.loads(find_config("hybrid", "default").read_text()) | {"max_vmapped_seeds": 1}
     (out / "sequential.json").write_text(json.dumps(hyb))
     seeds = a.seeds.split(",")
-    base = [sys.executable, "-m", "urb_jax.cli", "train", "--alg", a.alg, "--net", a.net, "--train-days",
-            str(a.train_days), "--seeds", a.seeds, "--results-dir", str(out / "results"), "--overwrite",
-            "--no-progress"] + (["--networks-dir", a.networks_dir] if a.networks_dir else [])
+    base = [sys.executable, "-m", "urb_jax.commands.cli", "train", "--alg", a.alg, "--net", a.net,
+            "--train-days", str(a.train_days), "--seeds", a.seeds, "--results-dir", str(out / "results"),
+            "--overwrite", "--no-progress"] + (["--networks-dir", a.networks_dir] if a.networks_dir else [])
     runs = {"vm": [*base, "--id", "vm"],
             "seq": [*base, "--id", "seq", "--hybrid-conf", str(out / "sequential.json")]}
     first, second = ("seq", "vm") if a.seq_first else ("vm", "seq")

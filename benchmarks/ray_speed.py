@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sumo_bridge import SumoPool
-from sumo_bridge.ray_executor import RayExecutor
-from urb_jax.scenario import load_scenario
+from urb_jax.city.scenario import load_scenario
+from urb_jax.sumo_bridge import SumoPool
+from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "networks"
 

@@ -13,11 +13,11 @@ import time
 import jax
 import jax.numpy as jnp
 
-from surrogate import SumoSample, build_static, fit_params, init_params, predict
-from surrogate.calibrate import FitConfig
-from surrogate.data import make_choices
-from surrogate.sumo_days import sumo_days
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.surrogate import SumoSample, build_static, fit_params, init_params, predict
+from urb_jax.surrogate.calibrate import FitConfig
+from urb_jax.surrogate.data import make_choices
+from urb_jax.surrogate.sumo_days import sumo_days
 
 
 def surrogate_travel_fn(scn: Scenario, n_days: int = 40, choice_seed: int = 1, sumo_seed: int = 42,

@@ -22,8 +22,8 @@ def main() -> None:
     parser.add_argument("--nets", nargs="*", default=DEFAULT_NETS)
     args = parser.parse_args()
     os.environ["URB_JAX_CACHE"] = tempfile.mkdtemp(prefix="urb-jax-bench-")
-    from urb_jax.errors import NetworkError
-    from urb_jax.scenario import load_scenario
+    from urb_jax.city.scenario import load_scenario
+    from urb_jax.core.errors import NetworkError
 
     print(f"{'network':<20} {'agents':>7} {'ODs':>5} {'first build s':>14} {'cached load s':>14}")
     for name in args.nets:

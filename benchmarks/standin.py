@@ -11,10 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.env import RoutingEnv
-from urb_jax.mutation import draw_cavs
-from urb_jax.rewards import behaviour_coefficients
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.game.env import RoutingEnv
+from urb_jax.game.mutation import draw_cavs
+from urb_jax.game.rewards import behaviour_coefficients
 
 
 def bpr_travel_time_fn(scn: Scenario, window_h: float = 0.5, alpha: float = 0.15, power: float = 4.0):

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sumo_bridge import SumoConfig, SumoPool
-from sumo_bridge.sim import Simulator
-from urb_jax.scenario import load_scenario
+from urb_jax.city.scenario import load_scenario
+from urb_jax.sumo_bridge import SumoConfig, SumoPool
+from urb_jax.sumo_bridge.sim import Simulator
 
 DEFAULT_NETS = ["urb_grid", "saint_arnoult", "provins", "ingolstadt_custom"]
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "networks"

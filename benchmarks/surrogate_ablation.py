@@ -14,12 +14,12 @@ from dataclasses import replace
 import jax.numpy as jnp
 import numpy as np
 
-from surrogate.calibrate import FitConfig, SumoSample, fit_params
-from surrogate.data import make_choices
-from surrogate.model import SurrogateConfig, build_static, init_params, predict_jit
-from surrogate.sumo_days import sumo_days
-from surrogate.validate import error_metrics
-from urb_jax.scenario import load_scenario
+from urb_jax.city.scenario import load_scenario
+from urb_jax.surrogate.calibrate import FitConfig, SumoSample, fit_params
+from urb_jax.surrogate.data import make_choices
+from urb_jax.surrogate.model import SurrogateConfig, build_static, init_params, predict_jit
+from urb_jax.surrogate.sumo_days import sumo_days
+from urb_jax.surrogate.validate import error_metrics
 
 EDGE = ("log_speed_e", "log_a_e", "log_junc_e")
 OFF = -30.0

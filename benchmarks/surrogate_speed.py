@@ -18,8 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from surrogate.model import SurrogateConfig, build_static, init_params, predict, predict_jit
-from urb_jax.scenario import load_scenario
+from urb_jax.city.scenario import load_scenario
+from urb_jax.surrogate.model import SurrogateConfig, build_static, init_params, predict, predict_jit
 
 
 def rate(fn, arg, batch: int, seconds: float) -> float:
@@ -57,7 +57,7 @@ def plain_bpr(scn, bin_s: float = 300.0):
 
 
 def sumo_seconds(scn, choices: np.ndarray) -> tuple[float, str]:
-    from sumo_bridge import run_day
+    from urb_jax.sumo_bridge import run_day
 
     name = "libsumo"
     times = []

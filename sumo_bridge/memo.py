@@ -12,8 +12,8 @@ import hashlib
 
 import numpy as np
 
-from sumo_bridge.pool import DayExecutor, _batch
-from sumo_bridge.types import DayResult
+from urb_jax.sumo_bridge.pool import DayExecutor, _batch
+from urb_jax.sumo_bridge.types import DayResult
 
 
 class MemoExecutor:

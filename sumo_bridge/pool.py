@@ -26,10 +26,10 @@ from typing import Protocol
 
 import numpy as np
 
-from sumo_bridge.config import SumoConfig
-from sumo_bridge.sim import Simulator, cav_mask, check_choices, redirect_fds, scenario_key
-from sumo_bridge.types import DayResult
-from urb_jax.errors import UrbJaxError
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.sumo_bridge.config import SumoConfig
+from urb_jax.sumo_bridge.sim import Simulator, cav_mask, check_choices, redirect_fds, scenario_key
+from urb_jax.sumo_bridge.types import DayResult
 
 
 class SumoDayError(UrbJaxError):

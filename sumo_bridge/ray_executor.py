@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from sumo_bridge.config import SumoConfig
-from sumo_bridge.pool import SumoDayError, _batch, failed_twice, log_tail
-from sumo_bridge.sim import Simulator, cav_mask, check_choices, scenario_key
-from sumo_bridge.types import DayResult
-from urb_jax.errors import UrbJaxError
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.sumo_bridge.config import SumoConfig
+from urb_jax.sumo_bridge.pool import SumoDayError, _batch, failed_twice, log_tail
+from urb_jax.sumo_bridge.sim import Simulator, cav_mask, check_choices, scenario_key
+from urb_jax.sumo_bridge.types import DayResult
 
 INSTALL_HINT = "pip install 'urb-jax[ray]'"
 

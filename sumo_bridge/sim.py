@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sumo_bridge.config import SumoConfig
-from sumo_bridge.tripinfo import insertion_order, parse_tripinfo, route_id, write_routes_file
-from sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayResult
+from urb_jax.sumo_bridge.config import SumoConfig
+from urb_jax.sumo_bridge.tripinfo import insertion_order, parse_tripinfo, route_id, write_routes_file
+from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayResult
 
 _ROUTE_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 # libsumo is one simulation per process: which Simulator's state it holds, if started at all.

@@ -6,8 +6,8 @@
     params = refit(params, scenario, new_sample)
 """
 
-from surrogate.calibrate import FitConfig, SumoSample, calibrate, fit_params, refit
-from surrogate.model import (
+from urb_jax.surrogate.calibrate import FitConfig, SumoSample, calibrate, fit_params, refit
+from urb_jax.surrogate.model import (
     Static,
     Surrogate,
     SurrogateConfig,

@@ -16,9 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from sumo_bridge.types import ARRIVED, DayResult
-from surrogate.model import Static, SurrogateConfig, build_static, init_params, predict, predict_jit
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.sumo_bridge.types import ARRIVED, DayResult
+from urb_jax.surrogate.model import Static, SurrogateConfig, build_static, init_params, predict, predict_jit
 
 Params = dict[str, jax.Array]
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from surrogate.model import Static, route_times_seconds
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.surrogate.model import Static, route_times_seconds
 
 KINDS = ("free_flow", "random", "equilibrium", "mix", "perturbed")
 

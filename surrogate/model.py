@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
 
 # Junction classes for the junction/signal delay term (the edge's downstream junction).
 JUNCTION_CLASSES = ("traffic_light", "priority", "right_before_left", "other")

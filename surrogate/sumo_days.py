@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-import sumo_bridge
-from sumo_bridge.types import DayResult
-from urb_jax.paths import cache_dir
-from urb_jax.scenario import Scenario
+from urb_jax import sumo_bridge
+from urb_jax.city.scenario import Scenario
+from urb_jax.core.paths import cache_dir
+from urb_jax.sumo_bridge.types import DayResult
 
 
 def backend_name() -> str:
@@ -86,7 +86,7 @@ def sumo_days(
         return [r for r in results if r is not None]
     idx = [b for b, _ in todo]
     if workers > 1:
-        from sumo_bridge import SumoPool
+        from urb_jax.sumo_bridge import SumoPool
 
         with SumoPool(min(workers, len(idx))) as pool:
             days = pool.run_days(scn, choices[idx], [int(seeds[b]) for b in idx])

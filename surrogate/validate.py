@@ -10,11 +10,11 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from surrogate.calibrate import FitConfig, SumoSample, calibrate
-from surrogate.data import make_choices
-from surrogate.model import SurrogateConfig, build_static, init_params, predict_jit
-from surrogate.sumo_days import backend_name, sumo_days
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.surrogate.calibrate import FitConfig, SumoSample, calibrate
+from urb_jax.surrogate.data import make_choices
+from urb_jax.surrogate.model import SurrogateConfig, build_static, init_params, predict_jit
+from urb_jax.surrogate.sumo_days import backend_name, sumo_days
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,6 @@ def real_networks_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def grid_scenario(_isolated_cache):
-    from urb_jax.scenario import load_scenario
+    from urb_jax.city.scenario import load_scenario
 
     return load_scenario("urb_grid")

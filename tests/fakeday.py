@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sumo_bridge.types import ARRIVED, DayResult
+from urb_jax.sumo_bridge.types import ARRIVED, DayResult
 
 
 class FakeDay:

@@ -12,9 +12,10 @@ import numpy as np
 import optax
 import pytest
 
-from algorithms import iql
-from algorithms.common import CONFIG_CLASSES, IQLConfig, load_algo_config, restore_checkpoint, save_checkpoint
-from urb_jax.errors import ConfigError
+from urb_jax.algorithms import iql
+from urb_jax.algorithms.common import CONFIG_CLASSES, IQLConfig, load_algo_config
+from urb_jax.core.errors import ConfigError
+from urb_jax.experiment.checkpoints import restore_checkpoint, save_checkpoint
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from standin import make_env

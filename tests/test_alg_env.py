@@ -6,13 +6,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from algorithms.baselines import aon_policy, random_policy
-from algorithms.common import collect, reset_envs
-from urb_jax.env import RoutingEnv
-from urb_jax.humans import HumanParams
-from urb_jax.rewards import behaviour_coefficients
-from urb_jax.routes import RouteParams
-from urb_jax.scenario import Scenario
+from urb_jax.algorithms.baselines import aon_policy, random_policy
+from urb_jax.algorithms.common import collect, reset_envs
+from urb_jax.city.routes import RouteParams
+from urb_jax.city.scenario import Scenario
+from urb_jax.game.env import RoutingEnv
+from urb_jax.game.humans import HumanParams
+from urb_jax.game.rewards import behaviour_coefficients
 
 
 def tiny_scenario() -> Scenario:
@@ -112,7 +112,7 @@ def test_levels_match_env_fixed_point_order(grid_scenario):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from standin import make_env
 
-    from algorithms.common import act_by_levels, dependency_levels
+    from urb_jax.algorithms.common import act_by_levels, dependency_levels
 
     env = make_env(grid_scenario)
     levels = dependency_levels(env)

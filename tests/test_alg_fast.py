@@ -13,8 +13,8 @@ import numpy as np
 import optax
 import pytest
 
-from algorithms import ippo, iql, qmix
-from algorithms.common import (
+from urb_jax.algorithms import ippo, iql, qmix
+from urb_jax.algorithms.common import (
     CONFIG_CLASSES,
     Day,
     IQLConfig,
@@ -23,7 +23,7 @@ from algorithms.common import (
     load_algo_config,
     update_plan,
 )
-from algorithms.qmix import QMixer
+from urb_jax.algorithms.qmix import QMixer
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))

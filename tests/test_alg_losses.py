@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from algorithms.common import (
+from urb_jax.algorithms.common import (
     Day,
     MixerConfig,
     buffer_add,
@@ -23,12 +23,12 @@ from algorithms.common import (
     linear_schedule,
     polyak,
 )
-from algorithms.ippo import Batch, ppo_loss
-from algorithms.ippo_star import bandit_ppo_loss
-from algorithms.iql import td_loss
-from algorithms.iql_star import bandit_loss
-from algorithms.qmix import QMixer, VDNMixer, mixed_td_loss
-from urb_jax.errors import ConfigError
+from urb_jax.algorithms.ippo import Batch, ppo_loss
+from urb_jax.algorithms.ippo_star import bandit_ppo_loss
+from urb_jax.algorithms.iql import td_loss
+from urb_jax.algorithms.iql_star import bandit_loss
+from urb_jax.algorithms.qmix import QMixer, VDNMixer, mixed_td_loss
+from urb_jax.core.errors import ConfigError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mixer_reference import qmix_numpy

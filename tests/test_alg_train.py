@@ -10,8 +10,8 @@ import jax
 import numpy as np
 import pytest
 
-from algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
-from algorithms.common import (
+from urb_jax.algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
+from urb_jax.algorithms.common import (
     IPPOStarConfig,
     IQLConfig,
     IQLStarConfig,

@@ -5,13 +5,13 @@ import pandas as pd
 import pytest
 
 from urb_jax.commands.baseline import run_baseline
-from urb_jax.results import read_records
+from urb_jax.results.records import read_records
 
 pytestmark = pytest.mark.sumo
 
 
 def test_aon_baseline_on_sumo(tmp_path, grid_scenario, capsys):
-    from sumo_bridge import run_day
+    from urb_jax.sumo_bridge import run_day
 
     out = run_baseline(model="aon", results_dir=str(tmp_path), progress=False,
                        task_overrides={"human_learning_episodes": 5, "training_eps": 2, "test_eps": 3})
@@ -40,8 +40,8 @@ def test_aon_baseline_on_sumo(tmp_path, grid_scenario, capsys):
 def _check_export_replays(folder, scn, tmp_path, capsys):
     import json
 
-    from urb_jax.cli import main
-    from urb_jax.day_export import cli_travel_times
+    from urb_jax.commands.cli import main
+    from urb_jax.results.day_export import cli_travel_times
 
     rou = tmp_path / "last.rou.xml"
     capsys.readouterr()

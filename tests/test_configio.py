@@ -2,8 +2,8 @@ from dataclasses import dataclass
 
 import pytest
 
-from urb_jax.configio import from_dict, load_json
-from urb_jax.errors import ConfigError
+from urb_jax.core.configio import from_dict, load_json
+from urb_jax.core.errors import ConfigError
 
 
 @dataclass(frozen=True)

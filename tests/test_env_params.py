@@ -4,8 +4,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.env import RoutingEnv
-from urb_jax.mutation import draw_cavs
+from urb_jax.game.env import RoutingEnv
+from urb_jax.game.mutation import draw_cavs
 
 
 def test_params_from_state_change_times_without_retracing(grid_scenario):

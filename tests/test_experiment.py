@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from fakeday import FakeDay
 
-from urb_jax.baselines import make_baseline
-from urb_jax.config import EnvConfig, TaskConfig, load_task_config, task_from_dict
-from urb_jax.configio import configs_dir, load_json
-from urb_jax.demand import scale_demand
-from urb_jax.errors import ConfigError
-from urb_jax.experiment import PHASE_HUMAN, PHASE_TEST, PHASE_TRAIN, run_experiment
-from urb_jax.mutation import draw_cavs
+from urb_jax.city.demand import scale_demand
+from urb_jax.core.configio import configs_dir, load_json
+from urb_jax.core.errors import ConfigError
+from urb_jax.experiment.baselines import make_baseline
+from urb_jax.experiment.protocol import PHASE_HUMAN, PHASE_TEST, PHASE_TRAIN, run_experiment
+from urb_jax.game.config import EnvConfig, TaskConfig, load_task_config, task_from_dict
+from urb_jax.game.mutation import draw_cavs
 
 TINY = TaskConfig(ratio_machines=0.25, human_learning_episodes=4, training_eps=3, test_eps=2)
 

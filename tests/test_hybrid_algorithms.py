@@ -14,8 +14,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor
 
 from urb_jax.commands.train import run_train
-from urb_jax.hybrid import ALGORITHMS
-from urb_jax.results import read_records
+from urb_jax.experiment.hybrid import ALGORITHMS
+from urb_jax.results.records import read_records
 
 TINY = {
     "iql": {"agent_frames_per_batch": 2, "mlp_depth": 1, "mlp_cells": 16, "minibatch_size": 64},

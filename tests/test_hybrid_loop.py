@@ -15,9 +15,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fakeday import FakeDay
 
-from urb_jax import hybrid
 from urb_jax.commands.train import resume_train, run_train
-from urb_jax.results import read_records
+from urb_jax.experiment import hybrid
+from urb_jax.results.records import read_records
 
 H, E = 10, 10  # configs/task/test.json
 
@@ -85,7 +85,7 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     wide = rec.pivot(index="day", columns="agent", values="action").sort_index()
     recorded = wide.to_numpy()
     agent_ids = wide.columns.to_numpy()
-    from urb_jax.scenario import load_scenario
+    from urb_jax.city.scenario import load_scenario
 
     scn = load_scenario("urb_grid")
     pos = {a: i for i, a in enumerate(scn.agent_id)}
@@ -102,7 +102,7 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
         np.mean([d.duration[is_cav] for d in test_days]) / 60, rel=1e-5)
     assert out["metrics"]["t_CAV_duration"] < out["metrics"]["t_CAV"]
     # the AON reference: the first test day's humans, every CAV on its minimum free-flow route
-    from urb_jax.baselines import aon_routes
+    from urb_jax.experiment.baselines import aon_routes
 
     np.testing.assert_array_equal(aon_day, np.where(is_cav, aon_routes(scn.fft, scn.route_valid), rest[T]))
     aon_t = FakeDay()(scn, aon_day, seed=42).travel_time

@@ -14,10 +14,10 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor, H, confs  # noqa: F401  (confs is a fixture)
 
-from urb_jax import hybrid
 from urb_jax.commands.train import resume_train, run_train
-from urb_jax.errors import UrbJaxError
-from urb_jax.results import read_records
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment import hybrid
+from urb_jax.results.records import read_records
 
 P, ROUNDS = 2, 3
 

@@ -8,8 +8,8 @@ import random
 import numpy as np
 import pytest
 
-from urb_jax.errors import ConfigError
-from urb_jax.mutation import draw_cavs
+from urb_jax.core.errors import ConfigError
+from urb_jax.game.mutation import draw_cavs
 
 
 class _Human:

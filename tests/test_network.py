@@ -3,12 +3,12 @@ from pathlib import Path
 
 import pytest
 
-from urb_jax.cli import main
-from urb_jax.errors import NetworkError
-from urb_jax.network import describe, find_network, read_demand
-from urb_jax.netxml import read_net
-from urb_jax.paths import embedded_networks_dir
-from urb_jax.scenario import load_scenario
+from urb_jax.city.network import describe, find_network, read_demand
+from urb_jax.city.netxml import read_net
+from urb_jax.city.scenario import load_scenario
+from urb_jax.commands.cli import main
+from urb_jax.core.errors import NetworkError
+from urb_jax.core.paths import embedded_networks_dir
 
 
 @pytest.fixture

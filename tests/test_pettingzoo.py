@@ -5,8 +5,8 @@ import pytest
 from fakeday import FakeDay
 from pettingzoo.test import api_test
 
-from urb_jax.config import TaskConfig
-from urb_jax.pettingzoo_env import UrbAECEnv
+from urb_jax.experiment.pettingzoo_env import UrbAECEnv
+from urb_jax.game.config import TaskConfig
 
 TASK = TaskConfig(ratio_machines=0.05, human_learning_episodes=2, test_eps=0)
 

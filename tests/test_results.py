@@ -7,11 +7,11 @@ import pandas as pd
 import pytest
 from fakeday import FakeDay
 
-from urb_jax.cli import main
 from urb_jax.commands.baseline import run_baseline
-from urb_jax.experiment import DayRecord
-from urb_jax.leaderboard import aggregate, collect
-from urb_jax.results import (
+from urb_jax.commands.cli import main
+from urb_jax.experiment.protocol import DayRecord
+from urb_jax.results.leaderboard import aggregate, collect
+from urb_jax.results.records import (
     PARTS_DIR,
     RECORDS_FILE,
     RecordsWriter,
@@ -104,7 +104,7 @@ def test_cli_refusal_is_a_clean_error(tmp_path, capsys):
 def test_human_phase_replay_matches_a_fresh_run(tmp_path):
     """A random run replaying an aon run's human phase: no SUMO calls for days 1..H, identical
     human-phase records and t_pre; a tampered source is refused."""
-    from urb_jax.errors import UrbJaxError
+    from urb_jax.core.errors import UrbJaxError
 
     src = run_baseline(model="aon", results_dir=str(tmp_path), exp_id="src", progress=False,
                        day_fn=FakeDay(), task_overrides=TINY)

@@ -9,10 +9,10 @@ import pytest
 import sumolib
 from janux.path_generators.extended_generator import ExtendedPathGenerator
 
-from urb_jax.network import find_network, read_demand
-from urb_jax.netxml import read_net
-from urb_jax.routes import RouteParams, build_route_graph, generate_od_routes, graph_adjacency
-from urb_jax.scenario import load_scenario
+from urb_jax.city.network import find_network, read_demand
+from urb_jax.city.netxml import read_net
+from urb_jax.city.routes import RouteParams, build_route_graph, generate_od_routes, graph_adjacency
+from urb_jax.city.scenario import load_scenario
 
 
 def _janux(graph, origin, destination, seed):
@@ -99,7 +99,7 @@ def test_real_network_routes_valid(name, real_networks_dir):
 
 def test_short_od_is_reported(caplog, tmp_path, monkeypatch):
     """A build with an OD of fewer distinct routes than K warns (never silent)."""
-    from urb_jax import scenario as scenario_mod
+    from urb_jax.city import scenario as scenario_mod
 
     real = scenario_mod.generate_routes
 

@@ -1,8 +1,8 @@
 import numpy as np
 
-from urb_jax.cli import main
-from urb_jax.routes import RouteParams
-from urb_jax.scenario import load_scenario
+from urb_jax.city.routes import RouteParams
+from urb_jax.city.scenario import load_scenario
+from urb_jax.commands.cli import main
 
 
 def test_agents_sorted_by_departure_and_views_consistent(grid_scenario):

@@ -5,10 +5,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from urb_jax.errors import ConfigError
-from urb_jax.humans import HumanParams, HumanState, act, init_humans, learn
-from urb_jax.observations import dependency_depth, make_observation_spec, observe
-from urb_jax.rewards import BEHAVIOURS, behaviour_coefficients, cav_rewards
+from urb_jax.core.errors import ConfigError
+from urb_jax.game.humans import HumanParams, HumanState, act, init_humans, learn
+from urb_jax.game.observations import dependency_depth, make_observation_spec, observe
+from urb_jax.game.rewards import BEHAVIOURS, behaviour_coefficients, cav_rewards
 
 KEY = jax.random.PRNGKey(0)
 

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sumo_bridge import ARRIVED, REMOVED_CAP, REMOVED_STUCK, SumoConfig, run_day
-from urb_jax.day_export import day_routes_xml
+from urb_jax.results.day_export import day_routes_xml
+from urb_jax.sumo_bridge import ARRIVED, REMOVED_CAP, REMOVED_STUCK, SumoConfig, run_day
 
 pytestmark = pytest.mark.sumo
 
@@ -80,7 +80,7 @@ def test_run_day_matches_sumo_cli_on_grid(grid_scenario, tmp_path):
 
 
 def test_run_day_matches_sumo_cli_on_saint_arnoult(real_networks_dir, tmp_path):
-    from urb_jax.scenario import load_scenario
+    from urb_jax.city.scenario import load_scenario
 
     scn = load_scenario("saint_arnoult", networks_dir=real_networks_dir)
     _check_against_cli(scn, scn.fft.argmin(1), np.zeros(scn.n_agents, bool), 42, tmp_path)

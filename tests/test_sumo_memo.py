@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sumo_bridge.memo import MemoExecutor
+from urb_jax.sumo_bridge.memo import MemoExecutor
 
 
 class CountingExecutor:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
+from urb_jax.sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
 
 pytestmark = pytest.mark.sumo
 
@@ -91,7 +91,7 @@ def test_bad_batch_is_rejected_before_dispatch(pool, grid_scenario):
 
 
 def test_sumo_error_is_reported_with_its_output(grid_scenario, tmp_path):
-    from sumo_bridge import SumoConfig
+    from urb_jax.sumo_bridge import SumoConfig
 
     bad = SumoConfig(additional_files=(str(tmp_path / "missing.add.xml"),))
     with SumoPool(1, config=bad, log_dir=tmp_path) as p, pytest.raises(SumoDayError) as err:
@@ -103,7 +103,7 @@ def test_sumo_error_is_reported_with_its_output(grid_scenario, tmp_path):
 def test_sumo_warnings_go_to_the_worker_log_not_the_console(grid_scenario, tmp_path, capfd):
     from test_sumo_bridge import _blocker
 
-    from sumo_bridge import SumoConfig
+    from urb_jax.sumo_bridge import SumoConfig
 
     choices = grid_scenario.fft.argmin(1)
     add, _ = _blocker(grid_scenario, choices, tmp_path)
@@ -117,7 +117,7 @@ def test_sumo_warnings_go_to_the_worker_log_not_the_console(grid_scenario, tmp_p
 
 
 def test_pool_takes_per_day_cav_masks(pool, grid_scenario):
-    from sumo_bridge import run_day
+    from urb_jax.sumo_bridge import run_day
 
     rng = np.random.default_rng(2)
     choices = rng.integers(0, grid_scenario.k, size=(2, grid_scenario.n_agents))

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
-from urb_jax.errors import UrbJaxError
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
 
 pytestmark = pytest.mark.sumo
 
@@ -31,7 +31,7 @@ def ray_local():
 
 @pytest.fixture(scope="module")
 def rex(ray_local, tmp_path_factory):
-    from sumo_bridge.ray_executor import RayExecutor
+    from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
     ex = RayExecutor(2, log_dir=tmp_path_factory.mktemp("ray-logs"), day_timeout_s=120)
     assert not ex.owns_ray  # an initialised Ray is used as is and left running
@@ -65,7 +65,7 @@ def test_ray_days_equal_in_process_and_pool_days_in_order(rex, grid_scenario, da
 
 
 def test_ray_takes_per_day_cav_masks_and_rejects_bad_batches(rex, grid_scenario):
-    from sumo_bridge import run_day
+    from urb_jax.sumo_bridge import run_day
 
     rng = np.random.default_rng(2)
     choices = rng.integers(0, grid_scenario.k, size=(2, grid_scenario.n_agents))
@@ -80,7 +80,7 @@ def test_ray_takes_per_day_cav_masks_and_rejects_bad_batches(rex, grid_scenario)
 def test_network_file_travels_through_the_object_store(rex, grid_scenario, days, tmp_path):
     import dataclasses
 
-    from sumo_bridge.sim import scenario_key
+    from urb_jax.sumo_bridge.sim import scenario_key
 
     choices, seeds, ref = days
     net = tmp_path / "copy.net.xml"
@@ -123,7 +123,7 @@ def test_killed_actor_is_replaced_and_its_day_repeated(rex, grid_scenario, days)
 
 
 def test_second_failure_raises_with_day_seed_and_log(ray_local, grid_scenario, tmp_path):
-    from sumo_bridge.ray_executor import RayExecutor
+    from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
     with RayExecutor(1, log_dir=tmp_path, day_timeout_s=0.05) as ex:  # no day fits in 50 ms
         with pytest.raises(SumoDayError) as err:
@@ -138,8 +138,8 @@ def test_second_failure_raises_with_day_seed_and_log(ray_local, grid_scenario, t
 
 
 def test_sumo_error_is_reported_with_its_output(ray_local, grid_scenario, tmp_path):
-    from sumo_bridge import SumoConfig
-    from sumo_bridge.ray_executor import RayExecutor
+    from urb_jax.sumo_bridge import SumoConfig
+    from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
     bad = SumoConfig(additional_files=(str(tmp_path / "missing.add.xml"),))
     with RayExecutor(1, config=bad, log_dir=tmp_path) as ex, pytest.raises(SumoDayError) as err:
@@ -149,7 +149,7 @@ def test_sumo_error_is_reported_with_its_output(ray_local, grid_scenario, tmp_pa
 
 
 def test_missing_ray_gives_the_install_command(monkeypatch):
-    from sumo_bridge.ray_executor import import_ray
+    from urb_jax.sumo_bridge.ray_executor import import_ray
 
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` now raises ImportError
     with pytest.raises(UrbJaxError, match=r"pip install 'urb-jax\[ray\]'"):
@@ -177,7 +177,7 @@ def test_train_with_executor_ray_gives_the_pool_metrics(ray_local, tmp_path):
 
     import pandas as pd
 
-    from urb_jax.cli import main
+    from urb_jax.commands.cli import main
 
     flags = _confs(tmp_path)
     assert main(["train", *flags, "--id", "ray", "--executor", "ray"]) == 0

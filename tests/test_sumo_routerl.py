@@ -15,8 +15,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from sumo_bridge import REMOVED_STUCK, SumoConfig, run_day
-from sumo_bridge.tripinfo import write_routes_file
+from urb_jax.sumo_bridge import REMOVED_STUCK, SumoConfig, run_day
+from urb_jax.sumo_bridge.tripinfo import write_routes_file
 
 pytestmark = pytest.mark.sumo
 

@@ -6,8 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from surrogate.calibrate import SumoSample, route_bias, without_bias
-from surrogate.model import SurrogateConfig, build_static, init_params, predict
+from urb_jax.surrogate.calibrate import SumoSample, route_bias, without_bias
+from urb_jax.surrogate.model import SurrogateConfig, build_static, init_params, predict
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from surrogate.calibrate import FitConfig, SumoSample, calibrate, refit
-from surrogate.data import make_choices
-from surrogate.model import build_static, init_params, predict_jit
-from surrogate.sumo_days import _from_npz, _to_npz, sumo_days
+from urb_jax.surrogate.calibrate import FitConfig, SumoSample, calibrate, refit
+from urb_jax.surrogate.data import make_choices
+from urb_jax.surrogate.model import build_static, init_params, predict_jit
+from urb_jax.surrogate.sumo_days import _from_npz, _to_npz, sumo_days
 
 pytestmark = pytest.mark.sumo
 

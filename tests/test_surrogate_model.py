@@ -7,9 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from surrogate.model import SurrogateConfig, build_static, init_params, predict, predict_jit
-from urb_jax.routes import RouteParams
-from urb_jax.scenario import Scenario
+from urb_jax.city.routes import RouteParams
+from urb_jax.city.scenario import Scenario
+from urb_jax.surrogate.model import SurrogateConfig, build_static, init_params, predict, predict_jit
 
 
 @pytest.fixture(scope="module")

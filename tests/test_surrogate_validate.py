@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from surrogate.calibrate import SumoSample
-from surrogate.validate import deviation_choices, error_metrics, route_agreement
+from urb_jax.surrogate.calibrate import SumoSample
+from urb_jax.surrogate.validate import deviation_choices, error_metrics, route_agreement
 
 
 def test_error_metrics_hand_case():

@@ -54,13 +54,14 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
                  human_phase_from: str | None = None) -> dict:
     """Run one baseline experiment and write results/<exp_id>/. Returns metrics and paths."""
     from urb_jax import __version__
-    from urb_jax.baselines import make_baseline
-    from urb_jax.config import load_env_config, load_task_config
-    from urb_jax.configio import to_dict
-    from urb_jax.demand import scale_demand
-    from urb_jax.experiment import run_experiment
-    from urb_jax.network import DEFAULT_NETWORK
-    from urb_jax.results import (
+    from urb_jax.city.demand import scale_demand
+    from urb_jax.city.network import DEFAULT_NETWORK
+    from urb_jax.city.scenario import load_scenario
+    from urb_jax.core.configio import to_dict
+    from urb_jax.experiment.baselines import make_baseline
+    from urb_jax.experiment.protocol import run_experiment
+    from urb_jax.game.config import load_env_config, load_task_config
+    from urb_jax.results.records import (
         RecordsWriter,
         create_results_dir,
         versions,
@@ -68,7 +69,6 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
         write_plots,
         write_run_metrics,
     )
-    from urb_jax.scenario import load_scenario
 
     net = net or DEFAULT_NETWORK
     task, task_path = load_task_config(task_conf)
@@ -96,11 +96,11 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     write_json(folder / "exp_config.json", config)
     writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
     if day_fn is None:  # SUMO's warnings go to the run's sumo.log, not the terminal
-        from sumo_bridge import run_day
+        from urb_jax.sumo_bridge import run_day
 
         day_fn = functools.partial(run_day, log_file=folder / "sumo.log")
     if human_phase_from:
-        from urb_jax.replay import load_replay
+        from urb_jax.experiment.replay import load_replay
 
         day_fn = load_replay(Path(results_dir) / human_phase_from, config, scn.agent_id,
                              task.human_learning_episodes, day_fn)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from urb_jax.network import DEFAULT_NETWORK
-from urb_jax.paths import NETWORKS_ENV
+from urb_jax.city.network import DEFAULT_NETWORK
+from urb_jax.core.paths import NETWORKS_ENV
 
 
 def add_network_flags(parser: argparse.ArgumentParser) -> None:

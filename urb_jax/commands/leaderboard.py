@@ -15,8 +15,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from urb_jax.leaderboard import aggregate, collect, to_markdown
-    from urb_jax.results import atomic_write_bytes
+    from urb_jax.results.leaderboard import aggregate, collect, to_markdown
+    from urb_jax.results.records import atomic_write_bytes
 
     table = aggregate(collect(args.results_dir))
     md = to_markdown(table)

@@ -21,9 +21,9 @@ def recompute(folder: str) -> dict[str, float]:
     """Rewrite FOLDER/metrics/{Benchmark,Vector}Metrics.csv (atomically) from records.parquet."""
     from pathlib import Path
 
-    from urb_jax.day_export import run_config
-    from urb_jax.errors import UrbJaxError
-    from urb_jax.results import write_run_metrics
+    from urb_jax.core.errors import UrbJaxError
+    from urb_jax.results.day_export import run_config
+    from urb_jax.results.records import write_run_metrics
 
     cfg = run_config(folder)
     if cfg.get("status") != "done" or "training_days" not in cfg:

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from urb_jax.city.network import available_networks, describe
 from urb_jax.commands.common import add_networks_dir
-from urb_jax.errors import UrbJaxError
-from urb_jax.network import available_networks, describe
-from urb_jax.paths import networks_search_path
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.paths import networks_search_path
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -6,8 +6,8 @@ import argparse
 import json
 import time
 
+from urb_jax.city.scenario import load_scenario
 from urb_jax.commands.common import add_network_flags
-from urb_jax.scenario import load_scenario
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     summary["seconds"] = round(time.perf_counter() - t0, 3)
     print(json.dumps(summary, indent=2))
     if args.routes_csv:
-        from urb_jax.routes_io import write_routes_csv
+        from urb_jax.city.routes_io import write_routes_csv
 
         write_routes_csv(scn, args.routes_csv)
         print(f"wrote {args.routes_csv}")

@@ -27,8 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from sumo_bridge import ARRIVED, InProcessExecutor, SumoConfig, SumoPool
-    from urb_jax.scenario import load_scenario
+    from urb_jax.city.scenario import load_scenario
+    from urb_jax.sumo_bridge import ARRIVED, InProcessExecutor, SumoConfig, SumoPool
 
     scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed)
     if args.routes == "fft":

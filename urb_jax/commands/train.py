@@ -18,7 +18,7 @@ METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_le
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from urb_jax.hybrid import ALGORITHMS, MODES
+    from urb_jax.experiment.hybrid import ALGORITHMS, MODES
 
     parser = sub.add_parser("train", help="train CAV policies (hybrid surrogate + SUMO; metrics from SUMO)")
     parser.add_argument("--alg", default="iql", choices=ALGORITHMS, help="algorithm (default iql)")
@@ -114,11 +114,11 @@ def _setup(cfg: dict[str, Any]):
     """Scenario, configs and algorithm config from the recorded arguments."""
     import dataclasses
 
-    from algorithms.common import load_algo_config
-    from urb_jax.config import load_env_config, load_task_config
-    from urb_jax.demand import scale_demand
-    from urb_jax.hybrid import load_hybrid_config
-    from urb_jax.scenario import load_scenario
+    from urb_jax.algorithms.common import load_algo_config
+    from urb_jax.city.demand import scale_demand
+    from urb_jax.city.scenario import load_scenario
+    from urb_jax.experiment.hybrid import load_hybrid_config
+    from urb_jax.game.config import load_env_config, load_task_config
 
     task, task_path = load_task_config(cfg["task_conf"])
     env, env_path = load_env_config(cfg["env_conf"])
@@ -134,10 +134,10 @@ def _setup(cfg: dict[str, Any]):
 
 
 def _executor(hyb: Any, log_dir: Path, kind: str = "pool", ray_address: str | None = None):
-    from sumo_bridge import InProcessExecutor, SumoPool
+    from urb_jax.sumo_bridge import InProcessExecutor, SumoPool
 
     if kind == "ray":
-        from sumo_bridge.ray_executor import RayExecutor
+        from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
         return RayExecutor(max(1, hyb.sumo_workers), log_dir=log_dir, day_timeout_s=hyb.day_timeout_s,
                            address=ray_address)
@@ -158,11 +158,11 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     """Train every seed (sharing the human phase and the SUMO pool; groups of up to
     `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
     `human_phase_from`: reuse that earlier train run's human phase instead of simulating it."""
-    from urb_jax.configio import to_dict
-    from urb_jax.human_reuse import reuse_human_phase, save_human_phase
-    from urb_jax.hybrid import run_human_phase
-    from urb_jax.network import DEFAULT_NETWORK
-    from urb_jax.results import create_results_dir, versions, write_json
+    from urb_jax.city.network import DEFAULT_NETWORK
+    from urb_jax.core.configio import to_dict
+    from urb_jax.experiment.human_reuse import reuse_human_phase, save_human_phase
+    from urb_jax.experiment.hybrid import run_human_phase
+    from urb_jax.results.records import create_results_dir, versions, write_json
 
     seeds = seeds or [0]
     net = net or DEFAULT_NETWORK
@@ -269,7 +269,7 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
 
 def _train(scn, task, env, hyb, alg, alg_config, mode, seeds, env_seed, folders, executor, human, progress,
            stop_after_round):
-    from urb_jax.hybrid import train_group
+    from urb_jax.experiment.hybrid import train_group
 
     return train_group(scn=scn, task=task, env_cfg=env, alg=alg, alg_config=alg_config, cfg=hyb, mode=mode,
                        seeds=seeds, env_seed=env_seed, folders=folders, executor=executor, human=human,
@@ -277,7 +277,7 @@ def _train(scn, task, env, hyb, alg, alg_config, mode, seeds, env_seed, folders,
 
 
 def _finish(folder: Path, config: dict[str, Any], summary: dict[str, Any], task: Any, wall: float) -> dict:
-    from urb_jax.results import write_json, write_plots, write_run_metrics
+    from urb_jax.results.records import write_json, write_plots, write_run_metrics
 
     if "stopped" in summary:  # simulated kill (tests): leave the run as a crash would
         config.update(wall_time_s=round(wall, 2))
@@ -302,7 +302,7 @@ def _write_rounds(folder: Path, rounds: list[dict[str, Any]]) -> None:
     import matplotlib.pyplot as plt
     import pandas as pd
 
-    from urb_jax.results import atomic_write_bytes
+    from urb_jax.results.records import atomic_write_bytes
 
     df = pd.DataFrame(rounds)
     atomic_write_bytes(folder / "rounds.csv", df.to_csv(index=False).encode())

@@ -6,8 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from urb_jax.city.scenario import load_scenario
 from urb_jax.commands.common import add_network_flags
-from urb_jax.scenario import load_scenario
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from surrogate.validate import ValidationConfig, validate
+    from urb_jax.surrogate.validate import ValidationConfig, validate
 
     scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed)
     out = Path(args.out) if args.out else Path("results") / "surrogate_validation" / scn.name

@@ -10,7 +10,7 @@ import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
-from urb_jax.errors import ConfigError
+from urb_jax.core.errors import ConfigError
 
 T = TypeVar("T")
 

@@ -83,7 +83,7 @@ class ObservationSpec:
 
 def make_observation_spec(kind: str, od: np.ndarray, depart: np.ndarray, k: int) -> ObservationSpec:
     if kind not in OBSERVATION_TYPES:
-        from urb_jax.errors import ConfigError
+        from urb_jax.core.errors import ConfigError
 
         raise ConfigError(f"unknown observations '{kind}'. Fix: use one of {', '.join(OBSERVATION_TYPES)}.")
     group = np.zeros_like(od) if kind == "global_previous_agents" else od

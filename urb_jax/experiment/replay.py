@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from sumo_bridge.types import ARRIVED, DayResult
-from urb_jax.errors import UrbJaxError
-from urb_jax.results import read_records
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.results.records import read_records
+from urb_jax.sumo_bridge.types import ARRIVED, DayResult
 
 # exp_config keys that must agree for the human phase to be the same.
 MUST_MATCH = ("network", "env_seed", "human_model", "human_alpha", "human_beta", "human_beta_randomness",

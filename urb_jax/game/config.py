@@ -11,12 +11,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from urb_jax.configio import find_config, from_dict, load_json
-from urb_jax.errors import ConfigError
-from urb_jax.humans import HumanParams
-from urb_jax.observations import OBSERVATION_TYPES
-from urb_jax.rewards import behaviour_coefficients
-from urb_jax.routes import RouteParams
+from urb_jax.city.routes import RouteParams
+from urb_jax.core.configio import find_config, from_dict, load_json
+from urb_jax.core.errors import ConfigError
+from urb_jax.game.humans import HumanParams
+from urb_jax.game.observations import OBSERVATION_TYPES
+from urb_jax.game.rewards import behaviour_coefficients
 
 DEMAND_MODES = ("auto", "sample", "duplicate")
 

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import networkx as nx
 import numpy as np
 
-from urb_jax.errors import RouteError
-from urb_jax.netxml import NetData
+from urb_jax.city.netxml import NetData
+from urb_jax.core.errors import RouteError
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import jax.numpy as jnp
 
-from urb_jax.errors import ConfigError
+from urb_jax.core.errors import ConfigError
 
 BEHAVIOURS: dict[str, tuple[float, float, float, float]] = {
     "selfish": (-1.0, 0.0, 0.0, 0.0),

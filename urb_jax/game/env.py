@@ -26,10 +26,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.humans import HumanParams, HumanState, act, init_humans, learn
-from urb_jax.observations import ObservationSpec, dependency_depth, make_observation_spec, observe
-from urb_jax.rewards import cav_rewards
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.game.humans import HumanParams, HumanState, act, init_humans, learn
+from urb_jax.game.observations import ObservationSpec, dependency_depth, make_observation_spec, observe
+from urb_jax.game.rewards import cav_rewards
 
 TravelTimeFn = Callable[[jnp.ndarray], jnp.ndarray]
 PolicyFn = Callable[[jax.Array, jnp.ndarray], jnp.ndarray]  # (key, obs[C, D]) -> actions[C]

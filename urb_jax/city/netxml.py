@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from urb_jax.errors import NetworkError
+from urb_jax.core.errors import NetworkError
 
 # Capacity per lane (veh/h) by speed limit (m/s): the speed-based branch of SUMO marouter's
 # table (ROMAAssignments::getCapacity, PTV-Validate / VISUM-Cologne). marouter selects a branch by

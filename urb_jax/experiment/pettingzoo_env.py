@@ -20,13 +20,13 @@ import numpy as np
 from pettingzoo import AECEnv
 from pettingzoo.utils import AgentSelector
 
-from urb_jax.config import EnvConfig, TaskConfig
-from urb_jax.experiment import _act, _learn, _sumo_day_fn, train_humans
-from urb_jax.humans import HumanState
-from urb_jax.mutation import draw_cavs
-from urb_jax.observations import make_observation_spec, observe
-from urb_jax.rewards import cav_rewards
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.experiment.protocol import _act, _learn, _sumo_day_fn, train_humans
+from urb_jax.game.config import EnvConfig, TaskConfig
+from urb_jax.game.humans import HumanState
+from urb_jax.game.mutation import draw_cavs
+from urb_jax.game.observations import make_observation_spec, observe
+from urb_jax.game.rewards import cav_rewards
 
 
 class UrbAECEnv(AECEnv):

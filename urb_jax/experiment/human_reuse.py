@@ -19,14 +19,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.config import TaskConfig
-from urb_jax.errors import UrbJaxError
-from urb_jax.experiment import train_humans
-from urb_jax.humans import HumanState
-from urb_jax.hybrid import HumanPhase, HybridConfig
-from urb_jax.replay import MUST_MATCH, ReplayHumanPhase
-from urb_jax.results import read_records
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment.hybrid import HumanPhase, HybridConfig
+from urb_jax.experiment.protocol import train_humans
+from urb_jax.experiment.replay import MUST_MATCH, ReplayHumanPhase
+from urb_jax.game.config import TaskConfig
+from urb_jax.game.humans import HumanState
+from urb_jax.results.records import read_records
 
 HUMAN_FILE = "human_phase.npz"
 # Beyond the baseline replay's keys: the phase's length and the calibration days it recorded.
@@ -36,7 +36,7 @@ TRAIN_MUST_MATCH = (*MUST_MATCH, "human_learning_episodes", "hybrid_calib_human_
 
 def save_human_phase(folder: Path, human: HumanPhase) -> None:
     """human_phase.npz: the learned human state and the calibration days (atomic)."""
-    from urb_jax.hybrid import _atomic_npz
+    from urb_jax.experiment.hybrid import _atomic_npz
 
     _atomic_npz(folder / HUMAN_FILE, calib_choices=human.calib_choices, calib_times=human.calib_times,
                 calib_arrived=human.calib_arrived,

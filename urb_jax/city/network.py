@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from urb_jax.errors import NetworkError
-from urb_jax.netxml import NetData, read_net
-from urb_jax.paths import NETWORKS_ENV, networks_search_path
+from urb_jax.city.netxml import NetData, read_net
+from urb_jax.core.errors import NetworkError
+from urb_jax.core.paths import NETWORKS_ENV, networks_search_path
 
 DEFAULT_NETWORK = "urb_grid"
 AGENT_COLUMNS = ("id", "origin", "destination", "start_time", "kind")

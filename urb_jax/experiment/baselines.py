@@ -20,8 +20,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.experiment import CavContext
-from urb_jax.humans import HumanParams, HumanState, act, learn
+from urb_jax.experiment.protocol import CavContext
+from urb_jax.game.humans import HumanParams, HumanState, act, learn
 
 BASELINES = ("aon", "random", "human")
 
@@ -94,7 +94,7 @@ class HumanPolicy:
 
 def make_baseline(name: str):
     """The baseline policy called `name` (aon, random, human)."""
-    from urb_jax.errors import ConfigError
+    from urb_jax.core.errors import ConfigError
 
     if name == "aon":
         return AonPolicy()

@@ -9,7 +9,7 @@ import sys
 
 from urb_jax import __version__
 from urb_jax.commands import COMMANDS
-from urb_jax.errors import UrbJaxError
+from urb_jax.core.errors import UrbJaxError
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from urb_jax.errors import ConfigError
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.core.errors import ConfigError
 
 
 def scale_demand(

@@ -19,12 +19,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.config import EnvConfig, TaskConfig
-from urb_jax.humans import HumanParams, HumanState, act, init_humans, learn
-from urb_jax.mutation import draw_cavs
-from urb_jax.observations import ObservationSpec, dependency_depth, make_observation_spec, observe
-from urb_jax.rewards import cav_rewards
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.game.config import EnvConfig, TaskConfig
+from urb_jax.game.humans import HumanParams, HumanState, act, init_humans, learn
+from urb_jax.game.mutation import draw_cavs
+from urb_jax.game.observations import ObservationSpec, dependency_depth, make_observation_spec, observe
+from urb_jax.game.rewards import cav_rewards
+from urb_jax.results.records import DayRecord
 
 PHASE_HUMAN, PHASE_TRAIN, PHASE_TEST = "human", "train", "test"
 
@@ -64,20 +65,6 @@ class CavContext:
     human_params: HumanParams
 
 
-@dataclass(frozen=True)
-class DayRecord:
-    """One simulated day, in the Scenario's agent order."""
-
-    day: int  # 1-based, URB's episode number
-    phase: str
-    choices: np.ndarray  # [N]
-    is_cav: np.ndarray  # [N] bool
-    result: Any  # DayResult
-    rewards: np.ndarray  # [N] CAV reward for CAVs, -travel time for humans
-    observations: np.ndarray | None  # [N, D], NaN rows for humans; None before mutation
-    sumo: bool = True
-
-
 @dataclass
 class ExperimentOutcome:
     is_cav: np.ndarray
@@ -90,7 +77,7 @@ class ExperimentOutcome:
 
 
 def _sumo_day_fn() -> DayFn:
-    from sumo_bridge import run_day
+    from urb_jax.sumo_bridge import run_day
 
     return run_day
 

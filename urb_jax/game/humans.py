@@ -46,7 +46,7 @@ class HumanParams:
     routerl_literal: bool = False
 
     def __post_init__(self) -> None:
-        from urb_jax.errors import ConfigError
+        from urb_jax.core.errors import ConfigError
 
         if self.model not in HUMAN_MODELS:
             raise ConfigError(

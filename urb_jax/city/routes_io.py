@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
 
 
 def routes_table(scn: Scenario) -> pd.DataFrame:

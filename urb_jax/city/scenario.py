@@ -22,17 +22,17 @@ from pathlib import Path
 import numpy as np
 
 from urb_jax import __version__
-from urb_jax.errors import NetworkError, RouteError
-from urb_jax.network import DEFAULT_NETWORK, NetworkFiles, find_network, read_demand
-from urb_jax.netxml import read_net
-from urb_jax.paths import cache_dir
-from urb_jax.routes import (
+from urb_jax.city.network import DEFAULT_NETWORK, NetworkFiles, find_network, read_demand
+from urb_jax.city.netxml import read_net
+from urb_jax.city.routes import (
     ODRoutes,
     RouteParams,
     build_route_graph,
     free_flow_times,
     generate_routes,
 )
+from urb_jax.core.errors import NetworkError, RouteError
+from urb_jax.core.paths import cache_dir
 
 log = logging.getLogger(__name__)
 CACHE_FORMAT = 1

@@ -14,6 +14,7 @@ import platform
 import shutil
 import tempfile
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +23,21 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from urb_jax.errors import UrbJaxError
-from urb_jax.experiment import DayRecord
+from urb_jax.core.errors import UrbJaxError
+
+@dataclass(frozen=True)
+class DayRecord:
+    """One simulated day, in the Scenario's agent order."""
+
+    day: int  # 1-based, URB's episode number
+    phase: str
+    choices: np.ndarray  # [N]
+    is_cav: np.ndarray  # [N] bool
+    result: Any  # DayResult
+    rewards: np.ndarray  # [N] CAV reward for CAVs, -travel time for humans
+    observations: np.ndarray | None  # [N, D], NaN rows for humans; None before mutation
+    sumo: bool = True
+
 
 RECORDS_FILE = "records.parquet"
 PARTS_DIR = "records.parts"
@@ -194,7 +208,7 @@ def write_run_metrics(folder: Path, human_days: int,
     """A run's metric files (metrics/BenchmarkMetrics.csv, VectorMetrics.csv, atomically) from its
     records: every run's last step, and what `urb-jax metrics` redoes. Returns the metrics and the
     records."""
-    from urb_jax.metrics import compute_metrics, vector_metrics
+    from urb_jax.results.metrics import compute_metrics, vector_metrics
 
     records = read_records(folder)
     metrics = compute_metrics(records, human_days, training_days)

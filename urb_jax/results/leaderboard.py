@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from urb_jax.errors import UrbJaxError
+from urb_jax.core.errors import UrbJaxError
 
 KEYS = ["network", "algorithm", "task_config", "env_config"]
 SHOWN = ["t_pre", "t_CAV", "t_HDV_test", "t_test", "cost_of_learning", "delta_V", "delta_L",

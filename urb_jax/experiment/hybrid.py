@@ -39,19 +39,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from algorithms.common import (
+from urb_jax.algorithms.common import (
     Day,
     Learner,
     act_by_levels,
     dependency_levels,
-    restore_checkpoint,
-    save_checkpoint,
 )
-from urb_jax.config import EnvConfig, TaskConfig
-from urb_jax.env import RoutingEnv
-from urb_jax.experiment import PHASE_TEST, PHASE_TRAIN, DayRecord, train_humans
-from urb_jax.humans import HumanState
-from urb_jax.scenario import Scenario
+from urb_jax.city.scenario import Scenario
+from urb_jax.experiment.checkpoints import restore_checkpoint, save_checkpoint
+from urb_jax.experiment.protocol import PHASE_TEST, PHASE_TRAIN, DayRecord, train_humans
+from urb_jax.game.config import EnvConfig, TaskConfig
+from urb_jax.game.env import RoutingEnv
+from urb_jax.game.humans import HumanState
 
 MODES = ("hybrid", "sumo", "surrogate")
 ALGORITHMS = ("iql", "ippo", "mappo", "qmix", "vdn", "iql_star", "ippo_star")
@@ -81,7 +80,7 @@ class HybridConfig:
 
 
 def load_hybrid_config(name: str = "default") -> tuple[HybridConfig, Path]:
-    from urb_jax.configio import find_config, load_json
+    from urb_jax.core.configio import find_config, load_json
 
     path = find_config("hybrid", name)
     return load_json(HybridConfig, path), path
@@ -101,9 +100,9 @@ class HumanPhase:
 def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor: Any, env_seed: int,
                     on_day: Callable[[str, int], None] | None = None, calibrate: bool = True) -> HumanPhase:
     """H SUMO days of human learning, then `calib_varied_days` varied SUMO days for calibration."""
-    from sumo_bridge.types import ARRIVED
-    from surrogate import build_static, init_params
-    from surrogate.data import make_choices
+    from urb_jax.sumo_bridge.types import ARRIVED
+    from urb_jax.surrogate import build_static, init_params
+    from urb_jax.surrogate.data import make_choices
 
     records: list[DayRecord] = []
 
@@ -146,7 +145,7 @@ def learner_for(alg: str, alg_config: Any, env: RoutingEnv, cfg: HybridConfig, n
     epsilon schedules (linear over n_iters, or IQL*'s per-update decay) end where URB's end."""
     import importlib
 
-    module = importlib.import_module(f"algorithms.{alg}")
+    module = importlib.import_module(f"urb_jax.algorithms.{alg}")
     fields = {f.name for f in dataclasses.fields(alg_config)}
     upd: dict[str, Any] = {"num_envs": cfg.num_envs}
     sumo_updates = cfg.sumo_updates if mode != "surrogate" else 0
@@ -192,7 +191,7 @@ class _Progress:
 
 
 def _atomic_json(path: Path, obj: Any) -> None:
-    from urb_jax.results import write_json
+    from urb_jax.results.records import write_json
 
     write_json(path, obj)
 
@@ -235,11 +234,11 @@ def train_group(
     surrogate parameters [S]); each round's S x P SUMO days go to the executor in one batch, and
     the test days likewise. Each seed refits its own surrogate on its own SUMO days (a loop over
     seeds outside the jitted training). `stop_after_round` simulates a kill (tests)."""
-    from sumo_bridge.memo import MemoExecutor
-    from surrogate import SumoSample, build_static, init_params, predict
-    from surrogate.calibrate import REFIT, FitConfig, fit_params, route_bias, without_bias
-    from urb_jax.mutation import draw_cavs
-    from urb_jax.results import RecordsWriter
+    from urb_jax.game.mutation import draw_cavs
+    from urb_jax.results.records import RecordsWriter
+    from urb_jax.sumo_bridge.memo import MemoExecutor
+    from urb_jax.surrogate import SumoSample, build_static, init_params, predict
+    from urb_jax.surrogate.calibrate import REFIT, FitConfig, fit_params, route_bias, without_bias
 
     if mode not in MODES:
         raise ValueError(f"mode {mode!r}: use one of {MODES}")
@@ -267,7 +266,7 @@ def train_group(
     humans0 = human.humans if human is not None else None
     # Placeholder human knowledge for a resume (shapes only; the checkpoint overwrites it).
     if humans0 is None:
-        from urb_jax.humans import init_humans
+        from urb_jax.game.humans import init_humans
 
         humans0 = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid), hp)
     env = RoutingEnv(scn, is_cav, sur_fn, human_init=humans0, travel_params=p0, **common)
@@ -466,7 +465,7 @@ def aon_same_humans(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray, exec
     humans, AON on the first test day's human draw), so each run reports
     it next to its own t_CAV (exp_config.json) at the cost of one SUMO day. Not a run day: it is
     not in the records or in any metric."""
-    from urb_jax.baselines import aon_routes
+    from urb_jax.experiment.baselines import aon_routes
 
     mixed = np.where(is_cav, aon_routes(scn.fft, scn.route_valid), choices)
     res = executor.run_days(scn, mixed[None], [env_seed], is_cav=is_cav)[0]

@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from sumo_bridge.tripinfo import insertion_order
-from urb_jax.errors import UrbJaxError
-from urb_jax.scenario import Scenario
+from urb_jax.sumo_bridge.tripinfo import insertion_order
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.city.scenario import Scenario
 
 VEHICLE_ATTRS = ('departLane="first" departPos="base" departSpeed="0" '
                  'arrivalLane="current" arrivalPos="max" arrivalSpeed="current"')
@@ -53,9 +53,9 @@ def run_config(folder: str | os.PathLike) -> dict[str, Any]:
 
 def scenario_of_run(folder: str | os.PathLike, networks_dir: str | None = None) -> Scenario:
     """The Scenario a run used, rebuilt from its exp_config.json (network, env seed, routes, demand)."""
-    from urb_jax.demand import scale_demand
-    from urb_jax.routes import RouteParams
-    from urb_jax.scenario import load_scenario
+    from urb_jax.city.demand import scale_demand
+    from urb_jax.city.routes import RouteParams
+    from urb_jax.city.scenario import load_scenario
 
     cfg = run_config(folder)
     nets = networks_dir or cfg.get("train_args", {}).get("networks_dir")
@@ -74,7 +74,7 @@ def recorded_day(folder: str | os.PathLike, scn: Scenario, day: int | None = Non
                  ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """(day, choices [N], is_cav [N], travel_time [N]) of a recorded SUMO day, in Scenario order;
     `day=None` is the last one."""
-    from urb_jax.results import read_records
+    from urb_jax.results.records import read_records
 
     rec = read_records(folder, columns=["day", "agent", "kind", "action", "travel_time", "sumo"])
     rec = rec[rec["sumo"]]

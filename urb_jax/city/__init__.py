@@ -1,0 +1,1 @@
+"""The city: network files, routes and the immutable Scenario every layer reads."""

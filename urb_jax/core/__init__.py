@@ -1,0 +1,1 @@
+"""Shared core: errors, paths, config-file loading, atomic writes, progress."""

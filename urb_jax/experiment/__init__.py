@@ -1,0 +1,1 @@
+"""Experiments: URB's protocol, the human phase, the hybrid trainer, checkpoints."""

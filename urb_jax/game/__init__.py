@@ -1,0 +1,1 @@
+"""The routing game: humans, rewards, observations, mutation and the functional env."""
