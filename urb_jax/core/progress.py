@@ -1,0 +1,68 @@
+"""The one progress display of long work: days done, days/s and ETA.
+
+On a terminal a tqdm bar (phase as its description, live figures as its postfix); without one
+(a log file, CI, nohup) a plain line at most every `every_s` seconds and at the end, so an
+overnight run's log still says how far it got. `enabled=False` shows nothing.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any, TextIO
+
+
+class Progress:
+    def __init__(self, total: int, enabled: bool = True, *, desc: str = "", unit: str = "day",
+                 every_s: float = 30.0, stream: TextIO | None = None) -> None:
+        self.total, self.unit, self.every_s = int(total), unit, every_s
+        self.stream = stream or sys.stderr
+        self.enabled = enabled
+        self.done = 0
+        self.phase = desc
+        self.info: dict[str, str] = {}
+        self.bar: Any = None
+        self._t0 = time.monotonic()
+        self._last_line = self._t0
+        if enabled and self.stream.isatty():
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, unit=unit, desc=desc or None, dynamic_ncols=True, smoothing=0.1,
+                            file=self.stream)
+
+    def update(self, n: int, phase: str | None = None, **info: float) -> None:
+        """`n` more units done, now in `phase`; `info` shows as key=value (NaN values are dropped)."""
+        self.done += n
+        if phase is not None:
+            self.phase = phase
+        self.info.update({k: f"{v:.3g}" for k, v in info.items() if v == v})
+        if self.bar is not None:
+            self.bar.set_description(self.phase or None)
+            self.bar.set_postfix(self.info, refresh=False)
+            self.bar.update(n)
+        elif self.enabled and time.monotonic() - self._last_line >= self.every_s:
+            self._line()
+
+    def line(self) -> str:
+        """'phase: done/total day (pct), rate day/s, ETA m:ss, key=value ...'."""
+        dt = max(time.monotonic() - self._t0, 1e-9)
+        rate = self.done / dt
+        eta = (self.total - self.done) / rate if rate > 0 else float("nan")
+        pct = 100.0 * self.done / max(self.total, 1)
+        eta_s = f"{int(eta // 60)}:{int(eta % 60):02d}" if eta == eta else "?"
+        extra = "".join(f", {k}={v}" for k, v in self.info.items())
+        head = f"{self.phase}: " if self.phase else ""
+        return (f"{head}{self.done}/{self.total} {self.unit} ({pct:.0f}%), {rate:.3g} {self.unit}/s, "
+                f"ETA {eta_s}{extra}")
+
+    def _line(self) -> None:
+        self._last_line = time.monotonic()
+        print(self.line(), file=self.stream, flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+        elif self.enabled and self.done:
+            self._line()
+        self.enabled = False
