@@ -11,7 +11,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.algorithms.common import NEG, Policy, take_agents
+from urb_jax.algorithms.networks import take_agents
+from urb_jax.algorithms.policy import NEG, Policy
 from urb_jax.game.env import RoutingEnv
 
 

@@ -25,27 +25,11 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from urb_jax.algorithms.common import (
-    MLP,
-    Day,
-    Learner,
-    PPOConfig,
-    adam_step,
-    collect,
-    day_metrics,
-    days_shape,
-    entropy,
-    flatten_days,
-    gae,
-    hidden_layers,
-    make_agent_net,
-    masked,
-    minibatch_days,
-    obs_scale,
-    reset_envs,
-    scan_train,
-    take_agents,
-)
+from urb_jax.algorithms.configs import PPOConfig
+from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.networks import MLP, hidden_layers, make_agent_net, obs_scale, take_agents
+from urb_jax.algorithms.policy import entropy, masked
+from urb_jax.algorithms.updates import adam_step, days_shape, flatten_days, gae, minibatch_days
 from urb_jax.game.env import EnvState, RoutingEnv
 
 

@@ -21,21 +21,11 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from urb_jax.algorithms.common import (
-    Day,
-    IPPOStarConfig,
-    Learner,
-    adam_step,
-    collect,
-    day_metrics,
-    days_shape,
-    entropy,
-    make_per_cav_mlp,
-    masked,
-    reset_envs,
-    scan_train,
-    take_agents,
-)
+from urb_jax.algorithms.configs import IPPOStarConfig
+from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.networks import make_per_cav_mlp, take_agents
+from urb_jax.algorithms.policy import entropy, masked
+from urb_jax.algorithms.updates import adam_step, days_shape
 from urb_jax.game.env import EnvState, RoutingEnv
 
 

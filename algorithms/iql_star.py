@@ -18,23 +18,12 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from urb_jax.algorithms.common import (
-    Buffer,
-    Day,
-    IQLStarConfig,
-    Learner,
-    adam_step,
-    buffer_add,
-    buffer_init,
-    collect,
-    day_metrics,
-    eps_greedy_policy,
-    flatten_days,
-    make_per_cav_mlp,
-    reset_envs,
-    scan_train,
-    select_tree,
-)
+from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
+from urb_jax.algorithms.configs import IQLStarConfig
+from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.networks import make_per_cav_mlp
+from urb_jax.algorithms.policy import eps_greedy_policy
+from urb_jax.algorithms.updates import adam_step, flatten_days, select_tree
 from urb_jax.game.env import EnvState, RoutingEnv
 
 

@@ -12,7 +12,8 @@ URB trains MAPPO with the cooperative reward, which the environment's reward coe
 from __future__ import annotations
 
 from urb_jax.algorithms import ippo
-from urb_jax.algorithms.common import Learner, PPOConfig
+from urb_jax.algorithms.configs import PPOConfig
+from urb_jax.algorithms.learner import Learner
 from urb_jax.game.env import RoutingEnv
 
 

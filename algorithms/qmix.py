@@ -22,31 +22,12 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from urb_jax.algorithms.common import (
-    Buffer,
-    Day,
-    Learner,
-    MixerConfig,
-    adam_step,
-    buffer_add,
-    buffer_init,
-    buffer_sample,
-    collect,
-    day_metrics,
-    days_shape,
-    eps_greedy_policy,
-    flatten_days,
-    hidden_layers,
-    linear_schedule,
-    make_agent_net,
-    masked,
-    obs_scale,
-    polyak,
-    reset_envs,
-    scan_train,
-    select_tree,
-    update_plan,
-)
+from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init, buffer_sample
+from urb_jax.algorithms.configs import MixerConfig
+from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.networks import hidden_layers, make_agent_net, obs_scale
+from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
+from urb_jax.algorithms.updates import adam_step, days_shape, flatten_days, polyak, select_tree, update_plan
 from urb_jax.game.env import EnvState, RoutingEnv
 
 

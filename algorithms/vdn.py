@@ -8,7 +8,8 @@ ignored, as in URB.
 from __future__ import annotations
 
 from urb_jax.algorithms import qmix
-from urb_jax.algorithms.common import Learner, MixerConfig
+from urb_jax.algorithms.configs import MixerConfig
+from urb_jax.algorithms.learner import Learner
 from urb_jax.game.env import RoutingEnv
 
 

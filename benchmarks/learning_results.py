@@ -30,8 +30,9 @@ from standin import bpr_travel_time_fn
 
 from urb_jax.algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
 from urb_jax.algorithms.baselines import aon_policy, random_policy
-from urb_jax.algorithms.common import evaluate, load_algo_config
 from urb_jax.algorithms.ippo_star import days_per_update
+from urb_jax.algorithms.learner import evaluate
+from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.scenario import load_scenario
 from urb_jax.game.env import RoutingEnv
 from urb_jax.game.mutation import draw_cavs

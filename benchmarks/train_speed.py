@@ -29,8 +29,8 @@ from real_surrogate import surrogate_travel_fn
 from standin import bpr_travel_time_fn
 
 from urb_jax.algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
-from urb_jax.algorithms.common import load_algo_config
 from urb_jax.algorithms.ippo_star import days_per_update
+from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.scenario import load_scenario
 from urb_jax.game.env import RoutingEnv
 from urb_jax.game.mutation import draw_cavs

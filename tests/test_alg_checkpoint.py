@@ -13,7 +13,8 @@ import optax
 import pytest
 
 from urb_jax.algorithms import iql
-from urb_jax.algorithms.common import CONFIG_CLASSES, IQLConfig, load_algo_config
+from urb_jax.algorithms.configs import IQLConfig
+from urb_jax.algorithms.registry import ALGORITHMS, load_algo_config
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.checkpoints import restore_checkpoint, save_checkpoint
 
@@ -45,7 +46,7 @@ def test_shipped_configs_load_with_urb_values():
     counts = {"iql": 5, "ippo": 5, "mappo": 5, "qmix": 5, "vdn": 5, "iql_star": 5, "ippo_star": 6}
     for alg, n in counts.items():
         for i in range(1, n + 1):
-            assert isinstance(load_algo_config(alg, f"config{i}"), CONFIG_CLASSES[alg])
+            assert isinstance(load_algo_config(alg, f"config{i}"), ALGORITHMS[alg].config_class)
     qmix3 = load_algo_config("qmix", "config3")
     days = qmix3.agent_frames_per_batch * qmix3.n_iters
     assert (days, qmix3.mixing_embed_dim, qmix3.tau) == (4000, 256, 0.003)

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.algorithms.baselines import aon_policy, random_policy
-from urb_jax.algorithms.common import collect, reset_envs
+from urb_jax.algorithms.learner import collect, reset_envs
 from urb_jax.city.routes import RouteParams
 from urb_jax.city.scenario import Scenario
 from urb_jax.game.env import RoutingEnv
@@ -112,7 +112,7 @@ def test_levels_match_env_fixed_point_order(grid_scenario):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from standin import make_env
 
-    from urb_jax.algorithms.common import act_by_levels, dependency_levels
+    from urb_jax.algorithms.learner import act_by_levels, dependency_levels
 
     env = make_env(grid_scenario)
     levels = dependency_levels(env)

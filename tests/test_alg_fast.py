@@ -14,16 +14,11 @@ import optax
 import pytest
 
 from urb_jax.algorithms import ippo, iql, qmix
-from urb_jax.algorithms.common import (
-    CONFIG_CLASSES,
-    Day,
-    IQLConfig,
-    MixerConfig,
-    PPOConfig,
-    load_algo_config,
-    update_plan,
-)
+from urb_jax.algorithms.configs import IQLConfig, MixerConfig, PPOConfig
+from urb_jax.algorithms.learner import Day
 from urb_jax.algorithms.qmix import QMixer
+from urb_jax.algorithms.registry import ALGORITHMS, load_algo_config
+from urb_jax.algorithms.updates import update_plan
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -34,9 +29,9 @@ TORCHRL = ("iql", "ippo", "mappo", "qmix", "vdn")
 
 
 def test_fast_configs_load_for_every_algorithm():
-    for alg in CONFIG_CLASSES:
+    for alg in ALGORITHMS:
         config = load_algo_config(alg, "fast")
-        assert isinstance(config, CONFIG_CLASSES[alg])
+        assert isinstance(config, ALGORITHMS[alg].config_class)
         assert config.num_envs == 64
     for alg in TORCHRL:
         fast, urb = load_algo_config(alg, "fast"), load_algo_config(alg, "config1")

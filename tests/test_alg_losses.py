@@ -12,22 +12,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from urb_jax.algorithms.common import (
-    Day,
-    MixerConfig,
-    buffer_add,
-    buffer_init,
-    buffer_sample,
-    eps_greedy,
-    gae,
-    linear_schedule,
-    polyak,
-)
+from urb_jax.algorithms.buffer import buffer_add, buffer_init, buffer_sample
+from urb_jax.algorithms.configs import MixerConfig
 from urb_jax.algorithms.ippo import Batch, ppo_loss
 from urb_jax.algorithms.ippo_star import bandit_ppo_loss
 from urb_jax.algorithms.iql import td_loss
 from urb_jax.algorithms.iql_star import bandit_loss
+from urb_jax.algorithms.learner import Day
+from urb_jax.algorithms.policy import eps_greedy, linear_schedule
 from urb_jax.algorithms.qmix import QMixer, VDNMixer, mixed_td_loss
+from urb_jax.algorithms.updates import gae, polyak
 from urb_jax.core.errors import ConfigError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

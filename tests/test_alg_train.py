@@ -11,13 +11,7 @@ import numpy as np
 import pytest
 
 from urb_jax.algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
-from urb_jax.algorithms.common import (
-    IPPOStarConfig,
-    IQLConfig,
-    IQLStarConfig,
-    MixerConfig,
-    PPOConfig,
-)
+from urb_jax.algorithms.configs import IPPOStarConfig, IQLConfig, IQLStarConfig, MixerConfig, PPOConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from standin import make_env

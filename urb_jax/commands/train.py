@@ -18,10 +18,11 @@ METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_le
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from urb_jax.experiment.hybrid import ALGORITHMS, MODES
+    from urb_jax.algorithms.registry import ALGORITHMS
+    from urb_jax.experiment.hybrid import MODES
 
     parser = sub.add_parser("train", help="train CAV policies (hybrid surrogate + SUMO; metrics from SUMO)")
-    parser.add_argument("--alg", default="iql", choices=ALGORITHMS, help="algorithm (default iql)")
+    parser.add_argument("--alg", default="iql", choices=tuple(ALGORITHMS), help="algorithm (default iql)")
     add_network_flags(parser)
     parser.add_argument("--task-conf", default="config1",
                         help="task config id or .json path (default config1)")
@@ -114,7 +115,7 @@ def _setup(cfg: dict[str, Any]):
     """Scenario, configs and algorithm config from the recorded arguments."""
     import dataclasses
 
-    from urb_jax.algorithms.common import load_algo_config
+    from urb_jax.algorithms.registry import load_algo_config
     from urb_jax.city.demand import scale_demand
     from urb_jax.city.scenario import load_scenario
     from urb_jax.experiment.hybrid import load_hybrid_config

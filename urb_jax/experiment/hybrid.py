@@ -39,12 +39,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.algorithms.common import (
-    Day,
-    Learner,
-    act_by_levels,
-    dependency_levels,
-)
+from urb_jax.algorithms.learner import Day, Learner, act_by_levels, dependency_levels
+from urb_jax.algorithms.registry import algorithm
 from urb_jax.city.scenario import Scenario
 from urb_jax.experiment.checkpoints import restore_checkpoint, save_checkpoint
 from urb_jax.experiment.protocol import PHASE_TEST, PHASE_TRAIN, DayRecord, train_humans
@@ -53,7 +49,6 @@ from urb_jax.game.env import RoutingEnv
 from urb_jax.game.humans import HumanState
 
 MODES = ("hybrid", "sumo", "surrogate")
-ALGORITHMS = ("iql", "ippo", "mappo", "qmix", "vdn", "iql_star", "ippo_star")
 CKPT_DIR = "checkpoints"
 
 
@@ -143,9 +138,6 @@ def learner_for(alg: str, alg_config: Any, env: RoutingEnv, cfg: HybridConfig, n
                 mode: str, n_iters_round: int = 1) -> tuple[Learner, Any]:
     """The algorithm's learner with num_envs and schedule lengths fitted to the hybrid budget:
     epsilon schedules (linear over n_iters, or IQL*'s per-update decay) end where URB's end."""
-    import importlib
-
-    module = importlib.import_module(f"urb_jax.algorithms.{alg}")
     fields = {f.name for f in dataclasses.fields(alg_config)}
     upd: dict[str, Any] = {"num_envs": cfg.num_envs}
     sumo_updates = cfg.sumo_updates if mode != "surrogate" else 0
@@ -156,7 +148,7 @@ def learner_for(alg: str, alg_config: Any, env: RoutingEnv, cfg: HybridConfig, n
         updates = max(1, n_rounds * (n_iters_round + sumo_updates))
         upd["eps_decay"] = float(alg_config.eps_decay ** (alg_config.num_episodes / updates))
     alg_config = dataclasses.replace(alg_config, **upd)
-    return module.make_learner(alg_config, env), alg_config
+    return algorithm(alg).make_learner(alg_config, env), alg_config
 
 
 def plan_rounds(cfg: HybridConfig, mode: str, days_per_iter: int) -> tuple[int, int, int, int]:

@@ -1,0 +1,110 @@
+"""Typed configs of the algorithm families (URB's keys plus our vectorisation options)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TorchRLCommon:
+    """Keys shared by URB's TorchRL configs (URB_REFERENCE §8) plus our vectorisation options."""
+
+    agent_frames_per_batch: int = 20  # days collected per env per iteration
+    n_iters: int = 200
+    num_epochs: int = 2
+    minibatch_size: int = 256  # samples (CAV decisions); taken as whole days
+    mlp_depth: int = 4
+    mlp_cells: int = 256
+    lr: float = 5e-4
+    gamma: float = 0.95  # only matters across days when dones are not all true (see docs)
+    max_grad_norm: float = 1.0
+    od_embedding_dim: int = 8  # 0 disables the OD embedding
+    shared_parameters: bool = True  # URB: shared; False = one network per CAV (leading axis)
+    normalize_obs: bool = True  # URB feeds raw seconds; we scale (see obs_scale)
+    num_envs: int = 1
+    # 0 = URB's update count (frames // minibatch_size steps per epoch, B times as many with B envs);
+    # > 0 = PureJaxRL: this many Adam steps per epoch, each on 1/num_minibatches of the iteration's
+    # days (minibatches grow with B instead of the step count). See update_plan.
+    num_minibatches: int = 0
+
+
+@dataclass(frozen=True)
+class IQLConfig(TorchRLCommon):
+    memory_size: int = 20000  # samples
+    eps_init: float = 1.0
+    eps_end: float = 0.1
+    exploration_fraction: float = 0.5
+    target_eps: float = 0.99  # URB key `eps`: target <- eps*target + (1-eps)*online, once per epoch
+
+
+@dataclass(frozen=True)
+class PPOConfig(TorchRLCommon):
+    """IPPO and MAPPO."""
+
+    clip_epsilon: float = 0.2
+    lmbda: float = 0.9
+    entropy_eps: float = 1e-3
+    normalize_advantage: bool = True
+    critic_coef: float = 1.0
+    critic_depth: int = 4
+    critic_cells: int = 256
+
+
+@dataclass(frozen=True)
+class MixerConfig(TorchRLCommon):
+    """QMIX and VDN."""
+
+    memory_size: int = 30000
+    tau: float = 0.01  # soft target update after every gradient step
+    eps_init: float = 1.0
+    eps_end: float = 0.1
+    exploration_fraction: float = 0.6
+    mixing_embed_dim: int = 192  # QMIX only
+    hypernet_hidden: int = 0  # QMIX only: 0 = URB's single linear hypernetwork; > 0 = pymarl's two layers
+    # "team" (URB): Q_tot = mixer(q) on the mean CAV reward, so a CAV's Q, and the gap between its
+    # routes, is 1/C of its own travel time. "own": the mixer sees q / C, so each CAV's Q lives on
+    # its own travel-time scale, which Adam resolves with hundreds of CAVs; Q_tot and the target are
+    # unchanged (docs/algorithms.md, "Per-CAV Q scale").
+    q_scale: str = "team"
+
+    def __post_init__(self) -> None:
+        if self.q_scale not in ("team", "own"):
+            from urb_jax.core.errors import ConfigError
+
+            raise ConfigError(f"key 'q_scale' is {self.q_scale!r}. Fix: use 'team' (URB) or 'own'.")
+
+
+@dataclass(frozen=True)
+class IQLStarConfig:
+    """URB scripts/iql.py: one Q network per CAV, a bandit on its own day reward."""
+
+    num_episodes: int = 4000  # training days (per env)
+    eps_init: float = 1.0
+    eps_decay: float = 0.9985
+    eps_min: float = 0.0
+    buffer_size: int = 2048
+    batch_size: int = 32
+    lr: float = 1e-3
+    num_epochs: int = 1
+    widths: tuple[int, ...] = (64, 64)
+    update_every: int = 1
+    normalize_obs: bool = True
+    num_envs: int = 1
+
+
+@dataclass(frozen=True)
+class IPPOStarConfig:
+    """URB scripts/ippo.py: one policy per CAV, PPO-clip on its own (standardised) day reward."""
+
+    num_episodes: int = 4000
+    batch_size: int = 64
+    update_every: int = 2
+    lr: float = 3e-4
+    num_epochs: int = 3
+    widths: tuple[int, ...] = (64, 64)
+    clip_eps: float = 0.2
+    normalize_advantage: bool = True
+    entropy_coef: float = 0.01
+    max_grad_norm: float = 1.0
+    normalize_obs: bool = True
+    num_envs: int = 1
