@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import pandas as pd
 
 from urb_jax.city.scenario import Scenario
+from urb_jax.core.atomic import write_text
 
 
 def routes_table(scn: Scenario) -> pd.DataFrame:
@@ -25,7 +25,4 @@ def routes_table(scn: Scenario) -> pd.DataFrame:
 
 
 def write_routes_csv(scn: Scenario, path: str | os.PathLike) -> None:
-    path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    routes_table(scn).to_csv(tmp, index=False)
-    os.replace(tmp, path)
+    write_text(path, routes_table(scn).to_csv(index=False))

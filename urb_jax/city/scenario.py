@@ -14,7 +14,6 @@ import hashlib
 import json
 import logging
 import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
@@ -31,6 +30,7 @@ from urb_jax.city.routes import (
     free_flow_times,
     generate_routes,
 )
+from urb_jax.core.atomic import write_npz
 from urb_jax.core.errors import NetworkError, RouteError
 from urb_jax.core.paths import cache_dir
 
@@ -172,15 +172,7 @@ def _save(scn: Scenario, path: Path) -> None:
         **{k: list(getattr(scn, k)) for k in _TUPLE_FIELDS},
     }
     arrays = {k: getattr(scn, k) for k in _ARRAY_FIELDS}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, _meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **arrays)
-        os.replace(tmp, path)  # atomic: a reader never sees half a cache file
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    write_npz(path, _meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **arrays)
 
 
 def _load(path: Path) -> Scenario:

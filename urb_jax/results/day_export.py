@@ -18,9 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from urb_jax.sumo_bridge.tripinfo import insertion_order
-from urb_jax.core.errors import UrbJaxError
 from urb_jax.city.scenario import Scenario
+from urb_jax.core.atomic import write_text
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.sumo_bridge.tripinfo import insertion_order
 
 VEHICLE_ATTRS = ('departLane="first" departPos="base" departSpeed="0" '
                  'arrivalLane="current" arrivalPos="max" arrivalSpeed="current"')
@@ -97,10 +98,7 @@ def export_day(folder: str | os.PathLike, out: str | os.PathLike, day: int | Non
     scn = scenario_of_run(folder, networks_dir)
     d, choices, is_cav, times = recorded_day(folder, scn, day)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
-    tmp.write_text(day_routes_xml(scn, choices, is_cav))
-    os.replace(tmp, out)
+    write_text(out, day_routes_xml(scn, choices, is_cav))
     seed = int(run_config(folder)["env_seed"])
     return {"day": d, "file": str(out), "net_file": scn.net_file, "vehicles": scn.n_agents,
             "cavs": int(is_cav.sum()), "mean_travel_time_min": round(float(times.mean()), 4),

@@ -1,0 +1,51 @@
+"""The installed package: everything under the `urb_jax` namespace, nothing under generic names.
+
+The repository keeps the user's top-level folders (algorithms/, surrogate/, sumo_bridge/, ...);
+`pip install .` must still put only `urb_jax` into site-packages, or installing urb-jax beside a
+PyPI package called `algorithms` or `surrogate` would break one of them.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    target = tmp_path_factory.mktemp("site")
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+                    "--no-compile", "--target", str(target), str(REPO)], check=True, capture_output=True)
+    return target
+
+
+def test_only_urb_jax_is_installed_at_top_level(site: Path) -> None:
+    top = {p.name for p in site.iterdir()
+           if not p.name.endswith((".dist-info", ".egg-info")) and p.name not in ("bin", "__pycache__")}
+    assert top == {"urb_jax"}
+
+
+def test_the_users_folders_are_inside_the_namespace(site: Path) -> None:
+    pkg = site / "urb_jax"
+    for rel in ("algorithms/registry.py", "surrogate/model.py", "sumo_bridge/sim.py",
+                "networks/urb_grid/urb_grid.net.xml", "configs/algo/iql/config1.json",
+                "configs/task/config1.json", "game/env.py", "experiment/protocol.py"):
+        assert (pkg / rel).is_file(), rel
+    assert not (pkg / "algorithms").is_symlink()  # a wheel carries files, not the checkout's links
+
+
+def test_installed_copy_imports_on_its_own(site: Path, tmp_path: Path) -> None:
+    """Imported from the installed files alone (not the checkout): every room, and the registry."""
+    code = ("import urb_jax.algorithms.registry as r, urb_jax.commands.cli, urb_jax.surrogate.model, "
+            "urb_jax.sumo_bridge.sim; print(r.__file__); print(sorted(r.ALGORITHMS))")
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, check=True,
+                         capture_output=True, text=True).stdout.split("\n")
+    assert out[0].startswith(str(site))
+    assert "iql_star" in out[1]
