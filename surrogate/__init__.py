@@ -9,7 +9,6 @@
 from urb_jax.surrogate.calibrate import FitConfig, SumoSample, calibrate, fit_params, refit
 from urb_jax.surrogate.model import (
     Static,
-    Surrogate,
     SurrogateConfig,
     build_static,
     init_params,
@@ -19,6 +18,6 @@ from urb_jax.surrogate.model import (
 )
 
 __all__ = [
-    "FitConfig", "Static", "SumoSample", "Surrogate", "SurrogateConfig", "build_static", "calibrate",
+    "FitConfig", "Static", "SumoSample", "SurrogateConfig", "build_static", "calibrate",
     "fit_params", "init_params", "predict", "predict_jit", "refit", "route_times_seconds",
 ]

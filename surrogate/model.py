@@ -22,7 +22,7 @@ that keeps the working set in cache. See docs/surrogate.md for what each term bu
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 
 import jax
@@ -273,15 +273,3 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
 
 
 predict_jit = jax.jit(predict)
-
-
-@dataclass(frozen=True)
-class Surrogate:
-    """A scenario's static arrays with fitted parameters: `surrogate(choices) -> minutes`."""
-
-    static: Static
-    params: dict[str, jax.Array]
-    config: SurrogateConfig = field(default_factory=SurrogateConfig)
-
-    def __call__(self, choices: jax.Array) -> jax.Array:
-        return predict_jit(self.params, self.static, jnp.asarray(choices))

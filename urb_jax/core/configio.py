@@ -10,6 +10,7 @@ import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
+from urb_jax import configs
 from urb_jax.core.errors import ConfigError
 
 T = TypeVar("T")
@@ -17,9 +18,7 @@ T = TypeVar("T")
 
 def configs_dir() -> Path:
     """The shipped configs (installed as the package urb_jax.configs)."""
-    from urb_jax import configs as _pkg
-
-    return Path(_pkg.__file__).resolve().parent
+    return Path(configs.__file__).resolve().parent
 
 
 def _type_ok(value: Any, annotation: Any) -> bool:

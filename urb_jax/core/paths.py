@@ -5,15 +5,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from urb_jax import networks
+
 NETWORKS_ENV = "URB_JAX_NETWORKS"
 CACHE_ENV = "URB_JAX_CACHE"
 
 
 def embedded_networks_dir() -> Path:
     """The networks shipped inside the package (the embedded default lives here)."""
-    from urb_jax import networks as _pkg
-
-    return Path(_pkg.__file__).resolve().parent
+    return Path(networks.__file__).resolve().parent
 
 
 def networks_search_path(networks_dir: str | os.PathLike | None = None) -> list[Path]:

@@ -11,6 +11,8 @@ import sys
 import time
 from typing import Any, TextIO
 
+from tqdm.auto import tqdm
+
 
 class Progress:
     def __init__(self, total: int, enabled: bool = True, *, desc: str = "", unit: str = "day",
@@ -25,8 +27,6 @@ class Progress:
         self._t0 = time.monotonic()
         self._last_line = self._t0
         if enabled and self.stream.isatty():
-            from tqdm.auto import tqdm
-
             self.bar = tqdm(total=total, unit=unit, desc=desc or None, dynamic_ncols=True, smoothing=0.1,
                             file=self.stream)
 

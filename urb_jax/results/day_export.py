@@ -17,10 +17,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import sumo
 
-from urb_jax.city.scenario import Scenario
+from urb_jax.city.demand import scale_demand
+from urb_jax.city.routes import RouteParams
+from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.atomic import write_text
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.results.records import read_records
 from urb_jax.sumo_bridge.tripinfo import insertion_order
 
 VEHICLE_ATTRS = ('departLane="first" departPos="base" departSpeed="0" '
@@ -54,10 +58,6 @@ def run_config(folder: str | os.PathLike) -> dict[str, Any]:
 
 def scenario_of_run(folder: str | os.PathLike, networks_dir: str | None = None) -> Scenario:
     """The Scenario a run used, rebuilt from its exp_config.json (network, env seed, routes, demand)."""
-    from urb_jax.city.demand import scale_demand
-    from urb_jax.city.routes import RouteParams
-    from urb_jax.city.scenario import load_scenario
-
     cfg = run_config(folder)
     nets = networks_dir or cfg.get("train_args", {}).get("networks_dir")
     params = RouteParams(number_of_paths=int(cfg["number_of_paths"]), beta=float(cfg["path_gen_beta"]),
@@ -75,8 +75,6 @@ def recorded_day(folder: str | os.PathLike, scn: Scenario, day: int | None = Non
                  ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """(day, choices [N], is_cav [N], travel_time [N]) of a recorded SUMO day, in Scenario order;
     `day=None` is the last one."""
-    from urb_jax.results.records import read_records
-
     rec = read_records(folder, columns=["day", "agent", "kind", "action", "travel_time", "sumo"])
     rec = rec[rec["sumo"]]
     days = rec["day"].unique()
@@ -107,8 +105,6 @@ def export_day(folder: str | os.PathLike, out: str | os.PathLike, day: int | Non
 
 def sumo_binary() -> str:
     """The `sumo` binary of the installed eclipse-sumo wheel."""
-    import sumo
-
     return os.path.join(sumo.SUMO_HOME, "bin", "sumo")
 
 
