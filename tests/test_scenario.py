@@ -46,3 +46,21 @@ def test_scenario_cli_writes_routes_csv(tmp_path, capsys):
     assert list(df.columns) == ["origins", "destinations", "path", "free_flow_time"]
     assert len(df) == 25 * 4
     assert '"agents": 400' in capsys.readouterr().out
+
+
+def test_cached_scenario_points_at_the_copy_asked_for(tmp_path):
+    """Two identical network folders share a cache entry (same contents), but each Scenario's
+    net_file is its own folder's file: editing or deleting the first copy never changes which
+    file SUMO reads for the second (issue: an edited original made SUMO load the wrong net)."""
+    import shutil
+
+    from urb_jax.core.paths import embedded_networks_dir
+
+    a, b = tmp_path / "a" / "urb_grid", tmp_path / "b" / "urb_grid"
+    shutil.copytree(embedded_networks_dir() / "urb_grid", a)
+    shutil.copytree(embedded_networks_dir() / "urb_grid", b)
+    first = load_scenario("urb_grid", networks_dir=a.parent)
+    second = load_scenario("urb_grid", networks_dir=b.parent)  # served by the cache entry `a` built
+    assert first.net_file == str(a / "urb_grid.net.xml")
+    assert second.net_file == str(b / "urb_grid.net.xml")
+    assert np.array_equal(first.od_routes, second.od_routes)

@@ -201,7 +201,9 @@ def load_scenario(
     cache_file = cache_dir() / "scenarios" / f"{files.name}-{_cache_key(files, params, env_seed)}.npz"
     if use_cache and cache_file.is_file():
         try:
-            return _load(cache_file)
+            # The key hashes the files' contents, so an identical copy elsewhere shares the entry;
+            # SUMO must still read the copy that was asked for, not the one that built the entry.
+            return replace(_load(cache_file), net_file=str(files.net))
         except Exception as exc:  # a stale or damaged cache is rebuilt, never trusted
             log.warning("ignoring unreadable scenario cache %s (%s)", cache_file, exc)
     scn = build_scenario(files, params, env_seed, workers=workers)
