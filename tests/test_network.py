@@ -150,3 +150,25 @@ def test_networks_list_real(capsys, real_networks_dir):
         if parts and parts[0] in expected:
             assert int(parts[1]) == expected.pop(parts[0]), line
     assert not expected, f"not listed: {expected}"
+
+
+def test_huge_start_time_is_an_error_not_an_overflow(grid_copy):
+    _rewrite_agents(grid_copy, 3, "start_time", "1e30")
+    with pytest.raises(NetworkError, match=r"line 4, field 'start_time': '1e30' is not an integer below"):
+        read_demand(find_network(str(grid_copy)))
+
+
+def test_header_only_agents_file_is_refused(grid_copy):
+    path = grid_copy / "agents.csv"
+    path.write_text(path.read_text().splitlines()[0] + "\n")
+    with pytest.raises(NetworkError, match=r"agents.csv: holds no agents .*Fix: add one row per agent"):
+        read_demand(find_network(str(grid_copy)))
+
+
+@pytest.mark.parametrize("name", ["od_urb_grid.txt", "agents.csv"])
+def test_file_that_is_not_utf8_is_named(grid_copy, name):
+    path = grid_copy / name
+    path.write_bytes(path.read_bytes() + b"\n\xff\xfe")
+    message = rf"{name}: is not UTF-8 text \(byte 0xff on line \d+\).*save it as UTF-8"
+    with pytest.raises(NetworkError, match=message):
+        read_demand(find_network(str(grid_copy)))

@@ -7,6 +7,7 @@ A network is a folder `<name>/` holding `<name>.net.xml`, `agents.csv` and `od_<
 from __future__ import annotations
 
 import ast
+import io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +22,7 @@ from urb_jax.core.paths import NETWORKS_ENV, networks_search_path
 DEFAULT_NETWORK = "urb_grid"
 AGENT_COLUMNS = ("id", "origin", "destination", "start_time", "kind")
 AGENT_KINDS = ("Human", "AV")
+MAX_INT = 2**31  # ids, indices and start times (seconds) are stored as int32
 
 
 @dataclass(frozen=True)
@@ -103,7 +105,7 @@ def available_networks(networks_dir: str | os.PathLike | None = None) -> list[Ne
 
 def read_od(path: Path) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """The od file is a Python literal dict (URB writes single quotes), not JSON."""
-    text = path.read_text()
+    text = _utf8_text(path, "write {'origins': [...], 'destinations': [...]}")
     try:
         data = ast.literal_eval(text)
     except (ValueError, SyntaxError) as exc:
@@ -122,11 +124,26 @@ def read_od(path: Path) -> tuple[tuple[str, ...], tuple[str, ...]]:
     return out[0], out[1]
 
 
-def read_agents(path: Path) -> pd.DataFrame:
+def _utf8_text(path: Path, what: str) -> str:
+    """The file's text, or an error that names the first byte that is not UTF-8."""
+    data = path.read_bytes()
     try:
-        df = pd.read_csv(path, dtype=str, keep_default_na=False)
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise NetworkError(path, f"is not UTF-8 text (byte 0x{data[exc.start]:02x} on line {line}).",
+                           f"save it as UTF-8; {what}.") from None
+
+
+def read_agents(path: Path) -> pd.DataFrame:
+    text = _utf8_text(path, f"agents.csv has the columns {', '.join(AGENT_COLUMNS)}")
+    try:
+        df = pd.read_csv(io.StringIO(text), dtype=str, keep_default_na=False)
     except Exception as exc:  # pandas raises many types for malformed CSV
         raise NetworkError(path, f"cannot be read as CSV ({exc}).") from exc
+    if df.empty:
+        raise NetworkError(path, "holds no agents (a header and no rows).",
+                           "add one row per agent: " + ",".join(AGENT_COLUMNS) + ".")
     df.columns = [c.strip() for c in df.columns]
     missing = [c for c in AGENT_COLUMNS if c not in df.columns]
     if missing:
@@ -141,16 +158,18 @@ def _int_column(df: pd.DataFrame, col: str, path: Path) -> np.ndarray:
         text = str(raw).strip()
         try:
             values[row] = int(text)
-        except ValueError:
+            if abs(values[row]) >= MAX_INT:
+                raise ValueError
+        except (ValueError, OverflowError):
             try:
                 as_float = float(text)
             except ValueError:
                 as_float = float("nan")
-            if as_float.is_integer():
+            if as_float.is_integer() and abs(as_float) < MAX_INT:
                 values[row] = int(as_float)
             else:
                 raise NetworkError(
-                    path, f"line {row + 2}, field '{col}': '{raw}' is not an integer.",
+                    path, f"line {row + 2}, field '{col}': '{raw}' is not an integer below {MAX_INT}.",
                     f"'{col}' must be a whole number" + (" of seconds." if col == "start_time" else "."),
                 ) from None
     return values
