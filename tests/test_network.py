@@ -121,6 +121,21 @@ def test_unreachable_od_names_the_agents(grid_copy):
     assert "no route" in msg and "agents" in msg and "in_w0" in msg
 
 
+def test_unroutable_pairs_are_found_on_the_graph_before_sampling(grid_copy, monkeypatch):
+    """The route-graph check names the agents without sampling a single route."""
+    from urb_jax.city import scenario as scenario_module
+
+    od = grid_copy / "od_urb_grid.txt"
+    od.write_text(od.read_text().replace("'out_e0'", "'in_w0'"))
+
+    def no_sampling(*args, **kwargs):
+        raise AssertionError("routes were sampled before the unroutable pairs were reported")
+
+    monkeypatch.setattr(scenario_module, "generate_routes", no_sampling)
+    with pytest.raises(NetworkError, match=r"(?s)agents.csv: \d+ OD pair\(s\) have no route.*all agent ids: \d"):
+        load_scenario(str(grid_copy), use_cache=False, workers=1)
+
+
 def test_search_order_flag_then_env_then_embedded(tmp_path, monkeypatch, grid_copy):
     flag_dir = tmp_path / "flag"
     shutil.copytree(grid_copy, flag_dir / "urb_grid")

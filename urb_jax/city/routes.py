@@ -174,6 +174,24 @@ def generate_od_routes(
     return ODRoutes(tuple(routes), n_pick)
 
 
+def unroutable(graph: nx.DiGraph, od_edges: Sequence[tuple[str, str]]) -> dict[int, str]:
+    """{index: reason} of the OD pairs with no path in the route graph, found before any sampling
+    (one reverse search per destination: seconds on the largest URB networks, where the sampler
+    would spend minutes before failing on them)."""
+    reach: dict[str, set[str]] = {}
+    bad: dict[int, str] = {}
+    for i, (origin, destination) in enumerate(od_edges):
+        if origin not in graph or destination not in graph:
+            missing = origin if origin not in graph else destination
+            bad[i] = f"edge '{missing}' has no connection in the route graph"
+            continue
+        if destination not in reach:
+            reach[destination] = nx.ancestors(graph, destination)
+        if origin != destination and origin not in reach[destination]:
+            bad[i] = f"no path from edge '{origin}' to edge '{destination}'"
+    return bad
+
+
 def graph_adjacency(graph: nx.DiGraph) -> tuple[dict[str, list[str]], dict[str, list[str]]]:
     """Sorted successor lists (JanuX sorts neighbours) and predecessor lists."""
     succ = {n: sorted(graph.successors(n)) for n in graph.nodes}

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from urb_jax import __version__
-from urb_jax.city.network import DEFAULT_NETWORK, NetworkFiles, find_network, read_demand
+from urb_jax.city.network import DEFAULT_NETWORK, Demand, NetworkFiles, find_network, read_demand
 from urb_jax.city.netxml import read_net
 from urb_jax.city.routes import (
     ODRoutes,
@@ -29,6 +29,7 @@ from urb_jax.city.routes import (
     build_route_graph,
     free_flow_times,
     generate_routes,
+    unroutable,
 )
 from urb_jax.core.atomic import write_npz
 from urb_jax.core.errors import NetworkError, RouteError
@@ -223,22 +224,10 @@ def build_scenario(
     graph = build_route_graph(net, passenger_only=params.passenger_only)
     if workers is None:
         workers = min(os.cpu_count() or 1, 4)
+    _refuse_unroutable(files, params, demand, pairs, list(unroutable(graph, od_edges).items()))
     (results,) = generate_routes(graph, od_edges, params, env_seed, workers=workers)
-    failures = [(i, r) for i, r in enumerate(results) if isinstance(r, str)]
-    if failures:
-        lines = []
-        for i, msg in failures[:10]:
-            o, d = pairs[i]
-            rows = np.flatnonzero((demand.origin == o) & (demand.destination == d))
-            ids = ", ".join(str(int(demand.agent_id[r])) for r in rows[:5])
-            lines.append(f"origin {o} -> destination {d} (agents {ids}): {msg}")
-        raise NetworkError(
-            files.agents,
-            f"{len(failures)} OD pair(s) have no route in {files.net.name}"
-            + (" for passenger cars" if params.passenger_only else "") + ":\n  "
-            + "\n  ".join(lines),
-            "fix the origin/destination indices of these agents or remove them.",
-        )
+    failed = [(i, r) for i, r in enumerate(results) if isinstance(r, str)]  # sampling found none
+    _refuse_unroutable(files, params, demand, pairs, failed)
     ok: list[ODRoutes] = [r for r in results if isinstance(r, ODRoutes)]
     index = net.index()
     k = params.number_of_paths
@@ -294,6 +283,29 @@ def build_scenario(
         agent_destination=demand.destination[order].astype(np.int32),
         agent_depart=demand.start_time[order],
         agent_kind=tuple(demand.kind[i] for i in order),
+    )
+
+
+def _refuse_unroutable(files: NetworkFiles, params: RouteParams, demand: Demand, pairs: list[tuple[int, int]],
+                       failures: list[tuple[int, str]]) -> None:
+    """A NetworkError naming every agent whose OD pair has no route (the first 10 pairs in full)."""
+    if not failures:
+        return
+    lines, agents = [], []
+    for n, (i, msg) in enumerate(failures):
+        o, d = pairs[i]
+        rows = np.flatnonzero((demand.origin == o) & (demand.destination == d))
+        ids = [int(demand.agent_id[r]) for r in rows]
+        agents += ids
+        if n < 10:
+            lines.append(f"origin {o} -> destination {d} (agents {', '.join(map(str, ids[:5]))}"
+                         + (", ..." if len(ids) > 5 else "") + f"): {msg}")
+    raise NetworkError(
+        files.agents,
+        f"{len(failures)} OD pair(s) have no route in {files.net.name}"
+        + (" for passenger cars" if params.passenger_only else "") + f", {len(agents)} agent(s):\n  "
+        + "\n  ".join(lines) + f"\n  all agent ids: {' '.join(map(str, sorted(agents)))}\n",
+        "fix the origin/destination indices of these agents or remove them.",
     )
 
 
