@@ -1,0 +1,1 @@
+"""Results: day records, metrics, plots, leaderboard and day export."""
