@@ -12,8 +12,8 @@ import hashlib
 
 import numpy as np
 
-from urb_jax.sumo_bridge.pool import DayExecutor, _batch
-from urb_jax.sumo_bridge.types import DayResult
+from urb_jax.sumo_bridge.batch import as_batch
+from urb_jax.sumo_bridge.types import DayExecutor, DayResult
 
 
 class MemoExecutor:
@@ -34,7 +34,7 @@ class MemoExecutor:
 
     def run_days(self, scenario: object, choices: np.ndarray, seeds: list[int] | np.ndarray,
                  is_cav: np.ndarray | None = None) -> list[DayResult]:
-        choices, seeds, cavs = _batch(scenario, choices, seeds, is_cav)
+        choices, seeds, cavs = as_batch(choices, seeds, is_cav)
         keys = [self._key(scenario, c, s, m) for c, s, m in zip(choices, seeds, cavs, strict=True)]
         todo: dict[tuple[int, str], int] = {}
         for i, key in enumerate(keys):

@@ -66,8 +66,8 @@ def test_worker_killed_mid_day_is_restarted_and_day_repeated(pool, grid_scenario
     th.join()
     assert killed and pool.restarts == restarts + 1
     assert all(a.same_as(b) for a, b in zip(out, ref, strict=True))
-    assert all(w.proc.is_alive() for w in pool.workers)
-    assert not list(Path(pool.workers[0].shm_dir).glob(f"urbjax-sumo-{killed[0]}-*"))  # files cleaned
+    assert all(w.proc.is_alive() for w in pool.slots)
+    assert not list(Path(pool.slots[0].shm_dir).glob(f"urbjax-sumo-{killed[0]}-*"))  # files cleaned
 
 
 def test_second_failure_raises_with_network_day_and_log(grid_scenario, tmp_path):
