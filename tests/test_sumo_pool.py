@@ -101,12 +101,12 @@ def test_sumo_error_is_reported_with_its_output(grid_scenario, tmp_path):
 
 
 def test_sumo_warnings_go_to_the_worker_log_not_the_console(grid_scenario, tmp_path, capfd):
-    from test_sumo_bridge import _blocker
+    from test_sumo_bridge import make_blocker
 
     from urb_jax.sumo_bridge import SumoConfig
 
     choices = grid_scenario.fft.argmin(1)
-    add, _ = _blocker(grid_scenario, choices, tmp_path)
+    add, _ = make_blocker(grid_scenario, choices, tmp_path)
     cfg = SumoConfig(additional_files=(str(add),), stuck_rule="sumo")  # SUMO warns on each teleport
     with SumoPool(1, config=cfg, log_dir=tmp_path / "logs") as p:
         res = p.run_days(grid_scenario, choices[None], [42])[0]
