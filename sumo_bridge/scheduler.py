@@ -130,8 +130,8 @@ class _Run(Generic[S]):
             ahead = tid + n_slots  # likely this worker's next day: pre-load its seed
             job = DayJob(tid, self.scenario, self.key, self.batch.choices[tid], seeds[tid],
                          self.batch.cavs[tid], seeds[ahead] if ahead < len(seeds) else seeds[tid])
+            s.task, s.started = tid, time.monotonic()  # busy from here: any exception restarts it
             failed = self.w.submit(s, job)
-            s.task, s.started = tid, time.monotonic()
             if failed is not None:
                 self._fail(s, failed)
 
