@@ -1,11 +1,21 @@
-"""Authoritative SUMO days through libsumo: `run_day` for one day, `SumoPool` for many."""
+"""Authoritative SUMO days through libsumo: `run_day` for one day, a `DayExecutor` for many.
+
+Executors: `InProcessExecutor` (this process), `SumoPool` (worker processes), `RayExecutor` (Ray
+actors; Ray is imported only when one is built), `MemoExecutor` (around any of them: each
+distinct day once, optionally kept on disk).
+"""
 
 from urb_jax.sumo_bridge.config import SumoConfig
-from urb_jax.sumo_bridge.pool import DayExecutor, InProcessExecutor, SumoDayError, SumoPool
-from urb_jax.sumo_bridge.sim import Simulator, run_day
-from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayResult
+from urb_jax.sumo_bridge.keys import day_key, scenario_key
+from urb_jax.sumo_bridge.memo import MemoExecutor
+from urb_jax.sumo_bridge.pool import SumoPool
+from urb_jax.sumo_bridge.ray_executor import RayExecutor
+from urb_jax.sumo_bridge.scheduler import SumoDayError
+from urb_jax.sumo_bridge.sim import InProcessExecutor, Simulator, run_day
+from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayExecutor, DayResult
 
 __all__ = [
     "ARRIVED", "REMOVED_CAP", "REMOVED_STUCK", "DayExecutor", "DayResult", "InProcessExecutor",
-    "Simulator", "SumoConfig", "SumoDayError", "SumoPool", "run_day",
+    "MemoExecutor", "RayExecutor", "Simulator", "SumoConfig", "SumoDayError", "SumoPool", "day_key",
+    "run_day", "scenario_key",
 ]

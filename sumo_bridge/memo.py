@@ -1,54 +1,118 @@
-"""Identical SUMO days run once: SUMO is deterministic for a (scenario, choices, CAV mask, seed).
+"""The one SUMO-day cache: identical days are run once. SUMO is deterministic for a (scenario,
+choices, CAV mask, seed, SumoConfig), so a stored result is the day a re-run would give
+(`tests/test_sumo_pool.py` checks that days are deterministic across workers and repeats).
 
-URB's test phase repeats one joint action: greedy policies meet frozen deterministic humans, so
-all `test_eps` days of a seed are the same day. Simulating it once and reusing the result gives
-the same records as simulating it 100 times (`tests/test_sumo_pool.py` checks that days are
-deterministic across workers and repeats), at a hundredth of the cost.
+Two users: URB's test phase repeats one joint action (greedy policies meet frozen deterministic
+humans, so all `test_eps` days of a seed are the same day): simulating it once gives the same
+records at a hundredth of the cost. Surrogate calibration and validation (`surrogate.sumo_days`)
+keep days on disk across runs. Keys: `keys.day_key`; files: `store_dir/<net>-<scenario key>/
+<day key>.npz`, written atomically; an entry that cannot be read is run again and rewritten.
 """
 
 from __future__ import annotations
 
-import hashlib
+import dataclasses
+import os
+import zipfile
+from pathlib import Path
 
 import numpy as np
 
-from urb_jax.sumo_bridge.pool import DayExecutor, _batch
-from urb_jax.sumo_bridge.types import DayResult
+from urb_jax.city.scenario import Scenario
+from urb_jax.core.atomic import write_npz
+from urb_jax.sumo_bridge.batch import as_batch
+from urb_jax.sumo_bridge.config import SumoConfig
+from urb_jax.sumo_bridge.keys import day_key, scenario_key
+from urb_jax.sumo_bridge.types import DayExecutor, DayResult
+
+# what np.load and DayResult(**fields) raise on a truncated, foreign or outdated file
+_DAMAGED = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
 
 
 class MemoExecutor:
-    """Wraps an executor; a batch runs each distinct (choices, mask, seed) it has not seen once."""
+    """Wraps a `DayExecutor`: a batch runs each distinct day not yet stored once, in one inner batch.
 
-    def __init__(self, inner: DayExecutor) -> None:
+    `store_dir`: also keep days on disk there (None: in memory only, for this object's life).
+    `config`: the SumoConfig the inner executor runs with, part of every key; by default the inner
+    executor's `config` (SumoPool, RayExecutor and InProcessExecutor have one)."""
+
+    def __init__(self, inner: DayExecutor, store_dir: str | os.PathLike | None = None,
+                 config: SumoConfig | None = None) -> None:
         self.inner = inner
-        self.cache: dict[tuple[int, str], DayResult] = {}
+        self.store_dir = Path(store_dir) if store_dir is not None else None
+        self.config: SumoConfig | None = config if config is not None else getattr(inner, "config", None)
+        self.cache: dict[str, DayResult] = {}
         self.simulated = 0
-        self.reused = 0
+        self.reused = 0  # served from memory or disk
 
-    @staticmethod
-    def _key(scenario: object, choices: np.ndarray, seed: int, mask: np.ndarray | None) -> tuple[int, str]:
-        h = hashlib.sha256(np.ascontiguousarray(choices, dtype=np.int64).tobytes())
-        h.update(b"-" if mask is None else np.ascontiguousarray(mask, dtype=bool).tobytes())
-        h.update(str(seed).encode())
-        return id(scenario), h.hexdigest()
-
-    def run_days(self, scenario: object, choices: np.ndarray, seeds: list[int] | np.ndarray,
+    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
                  is_cav: np.ndarray | None = None) -> list[DayResult]:
-        choices, seeds, cavs = _batch(scenario, choices, seeds, is_cav)
-        keys = [self._key(scenario, c, s, m) for c, s, m in zip(choices, seeds, cavs, strict=True)]
-        todo: dict[tuple[int, str], int] = {}
+        batch = as_batch(choices, seeds, is_cav)
+        keys = [day_key(scenario, c, s, m, self.config)
+                for c, s, m in zip(batch.choices, batch.seeds, batch.cavs, strict=True)]
+        todo: dict[str, int] = {}  # key -> first batch row with it
         for i, key in enumerate(keys):
-            if key not in self.cache and key not in todo:
+            if key not in todo and not self._lookup(scenario, key):
                 todo[key] = i
         if todo:
             rows = list(todo.values())
-            mask_arg = None if cavs[0] is None else np.stack([cavs[i] for i in rows])
-            for key, res in zip(todo, self.inner.run_days(scenario, choices[rows], [seeds[i] for i in rows],
-                                                          is_cav=mask_arg), strict=True):
-                self.cache[key] = res
+            mask_arg = None if batch.cavs[0] is None else np.stack([batch.cavs[i] for i in rows])
+            days = self.inner.run_days(scenario, batch.choices[rows], [batch.seeds[i] for i in rows],
+                                       is_cav=mask_arg)
+            for key, day in zip(todo, days, strict=True):
+                self.cache[key] = day
+                if self.store_dir is not None:
+                    save_day(self._path(scenario, key), day)
         self.simulated += len(todo)
         self.reused += len(keys) - len(todo)
         return [self.cache[k] for k in keys]
 
+    def _lookup(self, scenario: Scenario, key: str) -> bool:
+        """Whether the day is in memory, after loading it from disk if it is stored there."""
+        if key in self.cache:
+            return True
+        if self.store_dir is None:
+            return False
+        path = self._path(scenario, key)
+        if not path.is_file():
+            return False
+        try:
+            self.cache[key] = load_day(path)
+        except _DAMAGED:  # a damaged entry: run the day again (and rewrite it)
+            return False
+        return True
+
+    def _path(self, scenario: Scenario, key: str) -> Path:
+        assert self.store_dir is not None
+        return self.store_dir / f"{scenario.name}-{scenario_key(scenario)}" / f"{key}.npz"
+
     def close(self) -> None:
         self.inner.close()
+
+    def __enter__(self) -> MemoExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def save_day(path: str | os.PathLike, day: DayResult) -> None:
+    """One DayResult as an .npz of its fields (atomic; `leave_time` left out when None)."""
+    arrays = {f.name: np.asarray(getattr(day, f.name)) for f in dataclasses.fields(day)
+              if getattr(day, f.name) is not None}
+    write_npz(path, **arrays)
+
+
+def load_day(path: str | os.PathLike) -> DayResult:
+    """The DayResult `save_day` wrote (raises on a damaged file)."""
+    with np.load(path) as d:
+        a = {k: d[k] for k in d.files}
+    return DayResult(
+        travel_time=a["travel_time"], duration=a["duration"], route_length=a["route_length"],
+        mean_speed=a["mean_speed"], time_loss=a["time_loss"], depart_delay=a["depart_delay"],
+        status=a["status"], seed=int(a["seed"]), stat_mean_speed=float(a["stat_mean_speed"]),
+        stat_mean_route_length=float(a["stat_mean_route_length"]),
+        stat_mean_duration=float(a["stat_mean_duration"]), teleports=int(a["teleports"]),
+        n_removed=int(a["n_removed"]), sim_end_time=float(a["sim_end_time"]),
+        wall_time=float(a["wall_time"]), leave_time=a.get("leave_time"),
+    )

@@ -4,9 +4,10 @@ Each actor is one process owning one libsumo simulation (libsumo allows one per 
 travel through Ray's object store, so nodes need not share a filesystem: the network file's bytes
 (and those of `SumoConfig.additional_files`) are put once and written by each actor to its local
 /dev/shm; the route table is rebuilt from the Scenario's arrays as in `SumoPool`. Days are spread
-over the actors and come back in the order asked. An actor that dies, raises, or exceeds the
-per-day timeout is killed and replaced and its day retried once; a second failure raises
-`SumoDayError` naming the day, the seed and the actor's log. Ray is imported only here and only
+over the actors by `scheduler.schedule_days` (the pool's retry loop) and come back in the order
+asked. An actor that dies, raises, or exceeds the per-day timeout is killed and replaced and its
+day retried once; a second failure raises `SumoDayError` naming the day, the seed and the actor's
+log. Ray is imported only here and only
 when a `RayExecutor` is built (install it with `pip install 'urb-jax[ray]'`).
 """
 
@@ -20,27 +21,33 @@ import os
 import shutil
 import signal
 import tempfile
-import time
 import traceback
-from collections import deque
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from urb_jax.city.scenario import Scenario
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.sumo_bridge.config import SumoConfig
-from urb_jax.sumo_bridge.pool import SumoDayError, _batch, failed_twice, log_tail
-from urb_jax.sumo_bridge.sim import Simulator, cav_mask, check_choices, scenario_key
+from urb_jax.sumo_bridge.keys import scenario_key
+from urb_jax.sumo_bridge.logs import log_folder, log_tail
+from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, schedule_days
+from urb_jax.sumo_bridge.sim import Simulator
 from urb_jax.sumo_bridge.types import DayResult
+
+if TYPE_CHECKING:  # Ray is optional: its types only for annotations
+    from ray import ObjectRef
+    from ray.actor import ActorHandle
 
 INSTALL_HINT = "pip install 'urb-jax[ray]'"
 
 
-def import_ray() -> Any:
+def import_ray() -> ModuleType:
     """The `ray` module, or an error that says how to install it."""
     try:
-        import ray
+        import ray  # here only: Ray is an optional extra
     except ImportError as exc:
         raise UrbJaxError(f"--executor ray needs Ray, which is not installed ({exc}). Fix: {INSTALL_HINT}"
                           ) from exc
@@ -79,36 +86,35 @@ class SumoActor:
             adds.append(str(local))
         self.sim = Simulator(dataclasses.replace(config, additional_files=tuple(adds)),
                              console_warnings=True)
-        self.scenarios: dict[str, object] = {}
+        self.scenarios: dict[str, Scenario] = {}
 
     def ready(self) -> tuple[int, str, str]:
-        import ray
-
+        """(pid, node address, log path) once the Simulator is up."""
+        ray = import_ray()  # Ray is optional: imported only inside an actor or a built executor
         return os.getpid(), ray.util.get_node_ip_address(), self.log_path
 
     def cleanup(self, pid: int, node: str) -> None:
         """Remove the /dev/shm files a killed actor `pid` left, if it lived on this node."""
-        import ray
-
+        ray = import_ray()
         if node == ray.util.get_node_ip_address() and pid != os.getpid():
             base = _shm_base(self.sim.config)
             for d in (*glob.glob(f"{base}/urbjax-sumo-{pid}-*"), *glob.glob(f"{base}/urbjax-ray-{pid}-*")):
                 shutil.rmtree(d, ignore_errors=True)
 
-    def run_day(self, key: str, payload: tuple[object, str, bytes] | None, choices: np.ndarray, seed: int,
-                is_cav: np.ndarray | None, next_seed: int) -> tuple[str, Any]:
+    def run_day(self, key: str, payload: tuple[Scenario, str, bytes] | None, choices: np.ndarray, seed: int,
+                is_cav: np.ndarray | None, next_seed: int) -> tuple[str, DayResult | str]:
         try:
             if payload is not None:
                 scn, name, data = payload
                 net = self.files / key / name
                 net.parent.mkdir(exist_ok=True)
                 net.write_bytes(data)
-                self.scenarios[key] = dataclasses.replace(scn, net_file=str(net))  # type: ignore[type-var]
+                self.scenarios[key] = dataclasses.replace(scn, net_file=str(net))
             scn = self.scenarios[key]
             return "ok", self.sim.run_day(scn, choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
         except Exception:
             return "err", f"{traceback.format_exc()}\n--- SUMO log tail ({self.log_path}) ---\n" \
-                          f"{log_tail(Path(self.log_path))}"
+                          f"{log_tail(self.log_path)}"
 
     def close(self) -> None:
         self.sim.close()
@@ -120,13 +126,13 @@ class _Slot:
     """One actor as the driver sees it."""
 
     index: int
-    actor: Any
+    actor: ActorHandle
     pid: int = 0
     node: str = ""
     log_path: str = ""
     scenarios: set[str] = dataclasses.field(default_factory=set)
     task: int | None = None
-    ref: Any = None
+    ref: ObjectRef | None = None  # the day in flight
     started: float = 0.0
 
 
@@ -152,9 +158,7 @@ class RayExecutor:
         self.config = config or SumoConfig()
         self.day_timeout_s = float(day_timeout_s)
         self.start_timeout_s = float(start_timeout_s)
-        self._tmp = None if log_dir else tempfile.TemporaryDirectory(prefix="urbjax-ray-logs-")
-        self.log_dir = Path(log_dir) if log_dir else Path(self._tmp.name)  # type: ignore[union-attr]
-        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.log_dir, self._tmp = log_folder(log_dir, "urbjax-ray-logs-")
         self.owns_ray = not ray.is_initialized()
         if self.owns_ray:
             if address is None:
@@ -169,7 +173,7 @@ class RayExecutor:
                 extra[path] = Path(path).read_bytes()
         self._extra = ray.put(extra)
         self._cls = ray.remote(num_cpus=actor_cpus, max_restarts=0, max_task_retries=0)(SumoActor)
-        self._payloads: dict[str, Any] = {}
+        self._payloads: dict[str, ObjectRef] = {}
         self.restarts = 0
         self.slots: list[_Slot] = []
         try:
@@ -192,12 +196,13 @@ class RayExecutor:
         except ray.exceptions.GetTimeoutError as exc:
             raise SumoDayError(f"Ray SUMO actor {s.index} did not start within {self.start_timeout_s:.0f} s "
                                "(not enough free CPUs in the cluster?); log "
-                               f"{s.log_path}:\n{log_tail(Path(s.log_path))}") from exc
+                               f"{s.log_path}:\n{log_tail(s.log_path)}") from exc
         except ray.exceptions.RayError as exc:
             raise SumoDayError(f"Ray SUMO actor {s.index} failed to start: {exc}; log {s.log_path}:\n"
-                               f"{log_tail(Path(s.log_path))}") from exc
+                               f"{log_tail(s.log_path)}") from exc
 
-    def _restart(self, s: _Slot) -> _Slot:
+    def restart(self, s: _Slot) -> None:
+        """Kill the actor and start a new one in its slot (a `scheduler.Workers` method)."""
         with contextlib.suppress(Exception):
             self._ray.kill(s.actor, no_restart=True)
         self.restarts += 1
@@ -205,7 +210,6 @@ class RayExecutor:
         self._wait_ready(ns)
         ns.actor.cleanup.remote(s.pid, s.node)  # the dead actor's /dev/shm files, if on the same node
         self.slots[s.index] = ns
-        return ns
 
     def _where(self, s: _Slot) -> str:
         return f"{s.log_path} on node {s.node}" if s.node else s.log_path
@@ -215,81 +219,52 @@ class RayExecutor:
         return [s.pid for s in self.slots if s.task is not None]
 
     # --- days ---------------------------------------------------------------------------
-    def _payload(self, scenario: object, key: str) -> Any:
+    def put_scenario(self, scenario: Scenario) -> ObjectRef:
+        """The object-store copy of a Scenario and its network file's bytes (read once per scenario)."""
+        key = scenario_key(scenario)
         if key not in self._payloads:
-            net = Path(scenario.net_file)  # type: ignore[attr-defined]
+            net = Path(scenario.net_file)
             self._payloads[key] = self._ray.put((scenario, net.name, net.read_bytes()))
         return self._payloads[key]
 
-    def run_days(self, scenario: object, choices: np.ndarray, seeds: list[int] | np.ndarray,
+    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
                  is_cav: np.ndarray | None = None) -> list[DayResult]:
+        return schedule_days(self, scenario, choices, seeds, is_cav, day_timeout_s=self.day_timeout_s,
+                             where=" on Ray")
+
+    # --- the scheduler's backend (scheduler.Workers) ------------------------------------------
+    def submit(self, s: _Slot, job: DayJob) -> Failed | None:
+        send = None if job.key in s.scenarios else self.put_scenario(job.scenario)
+        s.ref = s.actor.run_day.remote(job.key, send, job.choices, job.seed, job.is_cav, job.next_seed)
+        s.scenarios.add(job.key)
+        return None
+
+    def wait(self, busy: list[_Slot], timeout: float) -> dict[int, DayResult | Failed]:
         ray = self._ray
-        choices, seeds, cavs = _batch(scenario, choices, seeds, is_cav)
-        for c, m in zip(choices, cavs, strict=True):  # bad input fails here, not twice on an actor
-            check_choices(scenario, c)
-            cav_mask(scenario, m)
-        key = scenario_key(scenario)
-        payload = self._payload(scenario, key) if len(seeds) else None
-        todo = deque(range(len(seeds)))
-        results: list[DayResult | None] = [None] * len(seeds)
-        failures: dict[int, list[str]] = {}
+        done, _ = ray.wait([s.ref for s in busy], num_returns=1, timeout=timeout)
+        finished = set(done)
+        out: dict[int, DayResult | Failed] = {}
+        for s in busy:
+            if s.ref not in finished:
+                continue
+            who = f"actor {s.index} (pid {s.pid})"
+            try:
+                kind, res = ray.get(s.ref)
+            except ray.exceptions.RayActorError as exc:
+                out[s.index] = self._failed(s, f"{who} died: {_first_line(exc)}")
+            except ray.exceptions.RayError as exc:
+                out[s.index] = self._failed(s, f"{who} failed: {_first_line(exc)}")
+            else:  # an actor's own error text already ends with its log tail
+                out[s.index] = res if kind == "ok" else Failed(f"{who} raised:\n{res}")
+            s.ref = None
+        return out
 
-        def fail(s: _Slot, reason: str, tail: str | None = None) -> None:
-            tid = s.task
-            assert tid is not None
-            s.task, s.ref = None, None
-            if tail is None:
-                tail = f"--- SUMO log tail ({self._where(s)}) ---\n{log_tail(Path(s.log_path))}"
-            failures.setdefault(tid, []).append(f"{reason}\n{tail}")
-            self._restart(s)
-            if len(failures[tid]) >= 2:
-                for other in self.slots:  # abandon in-flight days, keep the executor usable
-                    if other.task is not None:
-                        other.task = None
-                        self._restart(other)
-                raise failed_twice(scenario, tid, seeds[tid], failures[tid], where=" on Ray")
-            todo.appendleft(tid)
+    def overdue(self, s: _Slot) -> Failed:
+        return self._failed(s, f"actor {s.index} (pid {s.pid}) exceeded the {self.day_timeout_s:g} s "
+                               "day limit")
 
-        try:
-            while todo or any(s.task is not None for s in self.slots):
-                for s in self.slots:
-                    if s.task is None and todo:
-                        tid = todo.popleft()
-                        ahead = tid + len(self.slots)  # likely this actor's next day: pre-load it
-                        nxt = seeds[ahead] if ahead < len(seeds) else seeds[tid]
-                        send = None if key in s.scenarios else payload
-                        s.ref = s.actor.run_day.remote(key, send, choices[tid], seeds[tid], cavs[tid], nxt)
-                        s.task, s.started = tid, time.monotonic()
-                        s.scenarios.add(key)
-                busy = [s for s in self.slots if s.task is not None]
-                timeout = max(0.0, min(s.started + self.day_timeout_s - time.monotonic() for s in busy))
-                done, _ = ray.wait([s.ref for s in busy], num_returns=1, timeout=timeout)
-                finished = set(done)
-                for s in busy:
-                    if s.ref in finished:
-                        try:
-                            kind, out = ray.get(s.ref)
-                        except ray.exceptions.RayActorError as exc:
-                            fail(s, f"actor {s.index} (pid {s.pid}) died: {_first_line(exc)}")
-                            continue
-                        except ray.exceptions.RayError as exc:
-                            fail(s, f"actor {s.index} (pid {s.pid}) failed: {_first_line(exc)}")
-                            continue
-                        if kind == "ok":
-                            results[s.task] = out  # type: ignore[index]
-                            s.task, s.ref = None, None
-                        else:
-                            fail(s, f"actor {s.index} (pid {s.pid}) raised:", out)
-                    elif time.monotonic() - s.started > self.day_timeout_s:
-                        fail(s, f"actor {s.index} (pid {s.pid}) exceeded the {self.day_timeout_s:g} s "
-                                "day limit")
-        except BaseException:
-            for s in self.slots:
-                if s.task is not None:
-                    s.task = None
-                    self._restart(s)
-            raise
-        return results  # type: ignore[return-value]
+    def _failed(self, s: _Slot, reason: str) -> Failed:
+        return Failed(f"{reason}\n--- SUMO log tail ({self._where(s)}) ---\n{log_tail(s.log_path)}")
 
     def close(self) -> None:
         ray = self._ray

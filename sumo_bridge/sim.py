@@ -12,83 +12,24 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import hashlib
 import os
 import shutil
 import tempfile
 import time
-import weakref
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
+from urb_jax.city.scenario import Scenario
+from urb_jax.sumo_bridge.batch import as_batch, cav_mask, check_choices
 from urb_jax.sumo_bridge.config import SumoConfig
+from urb_jax.sumo_bridge.keys import scenario_key
+from urb_jax.sumo_bridge.logs import redirect_fds
 from urb_jax.sumo_bridge.tripinfo import insertion_order, parse_tripinfo, route_id, write_routes_file
 from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayResult
 
-_ROUTE_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 # libsumo is one simulation per process: which Simulator's state it holds, if started at all.
 _LIBSUMO: dict[str, object] = {"started": False, "owner": None}
-
-
-def scenario_key(scenario: object) -> str:
-    """Content hash of what SUMO sees of a Scenario (network file and route table)."""
-    key = _ROUTE_KEYS.get(scenario)
-    if key is None:
-        h = hashlib.sha256()
-        h.update(str(scenario.net_file).encode())  # type: ignore[attr-defined]
-        h.update("\n".join(scenario.edge_ids).encode())  # type: ignore[attr-defined]
-        h.update(np.ascontiguousarray(scenario.od_routes).tobytes())  # type: ignore[attr-defined]
-        key = h.hexdigest()[:16]
-        _ROUTE_KEYS[scenario] = key
-    return key
-
-
-def cav_mask(scenario: object, is_cav: np.ndarray | None) -> np.ndarray:
-    n = scenario.n_agents  # type: ignore[attr-defined]
-    if is_cav is None:
-        return np.array([k == "AV" for k in scenario.agent_kind], dtype=bool)  # type: ignore[attr-defined]
-    mask = np.asarray(is_cav, dtype=bool)
-    if mask.shape != (n,):
-        raise ValueError(f"is_cav has shape {mask.shape}; expected ({n},) in the Scenario's agent order")
-    return mask
-
-
-def check_choices(scenario: object, choices: np.ndarray) -> np.ndarray:
-    c = np.asarray(choices)
-    n, k = scenario.n_agents, scenario.k  # type: ignore[attr-defined]
-    if c.shape != (n,):
-        raise ValueError(f"choices has shape {c.shape}; expected ({n},) route indices in Scenario order")
-    if not np.issubdtype(c.dtype, np.integer) or c.min() < 0 or c.max() >= k:
-        raise ValueError(f"choices must be integer route indices in [0, {k}); got {c.dtype} "
-                         f"in [{c.min()}, {c.max()}]")
-    return c.astype(np.int64)
-
-
-@contextlib.contextmanager
-def redirect_fds(path: str | os.PathLike | None) -> Iterator[None]:
-    """Send this process's C-level stdout/stderr (SUMO's messages) to `path`, appending."""
-    if path is None:
-        yield
-        return
-    import sys
-
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-    try:
-        os.dup2(fd, 1)
-        os.dup2(fd, 2)
-        yield
-    finally:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for f in (fd, *saved):
-            os.close(f)
 
 
 class Simulator:
@@ -108,7 +49,7 @@ class Simulator:
         atexit.register(shutil.rmtree, self.workdir, True)  # files only; libsumo ends with us
 
     # --- SUMO control -------------------------------------------------------------------
-    def _routes_file(self, scenario: object) -> Path:
+    def _routes_file(self, scenario: Scenario) -> Path:
         path = self.workdir / f"routes-{scenario_key(scenario)}.add.xml"
         if not path.exists():
             write_routes_file(path, scenario)
@@ -147,13 +88,13 @@ class Simulator:
         shutil.rmtree(self.workdir, ignore_errors=True)
 
     # --- one day ------------------------------------------------------------------------
-    def run_day(self, scenario: object, choices: np.ndarray, *, seed: int,
+    def run_day(self, scenario: Scenario, choices: np.ndarray, *, seed: int,
                 is_cav: np.ndarray | None = None, next_seed: int | None = None) -> DayResult:
         """One day; `next_seed` (default: `seed`) is the seed the next day is pre-loaded with."""
         with redirect_fds(self.log_file if self.redirect_output else None):
             return self._run_day(scenario, choices, seed, is_cav, seed if next_seed is None else next_seed)
 
-    def _run_day(self, scn: object, choices: np.ndarray, seed: int,
+    def _run_day(self, scn: Scenario, choices: np.ndarray, seed: int,
                  is_cav: np.ndarray | None, next_seed: int) -> DayResult:
         import libsumo
 
@@ -162,7 +103,7 @@ class Simulator:
         choices = check_choices(scn, choices)
         cav = cav_mask(scn, is_cav)
         # everything the loaded state depends on (the config may be swapped between days)
-        key = (str(scn.net_file), str(self._routes_file(scn)), int(seed),  # type: ignore[attr-defined]
+        key = (str(scn.net_file), str(self._routes_file(scn)), int(seed),
                (cfg.additional_files, tuple(cfg.sumo_args(0))))
         if self._fresh != key or _LIBSUMO["owner"] is not self:
             self._load(key)
@@ -170,9 +111,9 @@ class Simulator:
         trip_path = self._trip_path
         assert trip_path is not None
 
-        ids = [str(int(a)) for a in scn.agent_id]  # type: ignore[attr-defined]
-        depart = np.asarray(scn.agent_depart, dtype=np.int64)  # type: ignore[attr-defined]
-        od = scn.agent_od  # type: ignore[attr-defined]
+        ids = [str(int(a)) for a in scn.agent_id]
+        depart = np.asarray(scn.agent_depart, dtype=np.int64)
+        od = scn.agent_od
         add = libsumo.vehicle.add
         for i in insertion_order(depart, cav):
             add(ids[i], route_id(od[i], choices[i]), typeID="AV" if cav[i] else "Human",
@@ -255,7 +196,7 @@ class Simulator:
         return self._result(scn, trips, removed, pos, depart, seed, teleports, end_time,
                             time.perf_counter() - t0)
 
-    def _result(self, scn: object, trips: dict, removed: dict, pos: dict, depart: np.ndarray,
+    def _result(self, scn: Scenario, trips: dict, removed: dict, pos: dict, depart: np.ndarray,
                 seed: int, teleports: int, end_time: float, wall: float) -> DayResult:
         cfg = self.config
         n = len(pos)
@@ -292,7 +233,7 @@ class Simulator:
         tt = (leave + cfg.tt_offset_s - depart) / 60.0
         out = status != ARRIVED
         if cfg.stuck_penalty == "urb":
-            tt[out] = scn.simulation_timesteps / 60.0  # type: ignore[attr-defined]
+            tt[out] = scn.simulation_timesteps / 60.0
         arrived = ~out
         with np.errstate(invalid="ignore", divide="ignore"):
             speed = np.where(arrived, length / dur, np.nan)
@@ -325,7 +266,29 @@ def get_simulator(config: SumoConfig | None = None, log_file: str | os.PathLike 
     return _SIMULATOR
 
 
-def run_day(scenario: object, choices: np.ndarray, *, seed: int, is_cav: np.ndarray | None = None,
+def run_day(scenario: Scenario, choices: np.ndarray, *, seed: int, is_cav: np.ndarray | None = None,
             config: SumoConfig | None = None, log_file: str | os.PathLike | None = None) -> DayResult:
     """One SUMO day in this process: `choices[N]` route indices in the Scenario's agent order."""
     return get_simulator(config, log_file).run_day(scenario, choices, seed=seed, is_cav=is_cav)
+
+
+class InProcessExecutor:
+    """The `DayExecutor` without workers: days one after another on this process's own Simulator."""
+
+    def __init__(self, config: SumoConfig | None = None, log_file: str | os.PathLike | None = None) -> None:
+        self.sim = Simulator(config, log_file)
+
+    @property
+    def config(self) -> SumoConfig:
+        return self.sim.config
+
+    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
+                 is_cav: np.ndarray | None = None) -> list[DayResult]:
+        batch = as_batch(choices, seeds, is_cav)
+        seeds = batch.seeds
+        nxt = [*seeds[1:], seeds[-1]] if seeds else []  # each day pre-loads the next day's seed
+        return [self.sim.run_day(scenario, c, seed=s, is_cav=m, next_seed=n)
+                for c, s, m, n in zip(batch.choices, seeds, batch.cavs, nxt, strict=True)]
+
+    def close(self) -> None:
+        self.sim.close()

@@ -8,6 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from urb_jax.city.scenario import Scenario
+from urb_jax.core.atomic import write_text
+
 _TRIP = re.compile(r"<tripinfo\s([^>]*)>")
 _ATTR = re.compile(r'([A-Za-z]+)="([^"]*)"')
 TRIP_FIELDS = ("depart", "departDelay", "arrival", "duration", "routeLength", "timeLoss")
@@ -29,17 +32,15 @@ def route_id(od: int, k: int) -> str:
     return f"{int(od)}_{int(k)}"
 
 
-def write_routes_file(path: str | os.PathLike, scenario: object) -> None:
+def write_routes_file(path: str | os.PathLike, scenario: Scenario) -> None:
     """vTypes Human/AV (SUMO defaults, as URB) and one route per (od, k), id '{od}_{k}'."""
     lines = ["<routes>", '    <vType id="Human"/>', '    <vType id="AV"/>']
-    for od in range(scenario.n_od):  # type: ignore[attr-defined]
-        for k in range(scenario.k):  # type: ignore[attr-defined]
-            edges = " ".join(scenario.route_edge_ids(od, k))  # type: ignore[attr-defined]
+    for od in range(scenario.n_od):
+        for k in range(scenario.k):
+            edges = " ".join(scenario.route_edge_ids(od, k))
             lines.append(f'    <route id="{route_id(od, k)}" edges="{edges}"/>')
     lines.append("</routes>\n")
-    tmp = Path(f"{path}.tmp{os.getpid()}")
-    tmp.write_text("\n".join(lines))
-    os.replace(tmp, path)
+    write_text(path, "\n".join(lines))
 
 
 def insertion_order(depart: np.ndarray, is_cav: np.ndarray) -> np.ndarray:

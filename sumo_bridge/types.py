@@ -1,4 +1,5 @@
-"""What a SUMO day returns. The contract every other layer codes against.
+"""The contract every other layer codes against: what a SUMO day returns (`DayResult`) and what
+runs a batch of days (`DayExecutor`).
 
 Arrays are per vehicle, in the Scenario's agent order (sorted by departure).
 """
@@ -6,8 +7,11 @@ Arrays are per vehicle, in the Scenario's agent order (sorted by departure).
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import Protocol
 
 import numpy as np
+
+from urb_jax.city.scenario import Scenario
 
 ARRIVED = 0
 REMOVED_STUCK = 1  # stood still too long (SumoConfig.stuck_rule), charged SumoConfig.stuck_penalty
@@ -51,3 +55,14 @@ class DayResult:
     @property
     def n(self) -> int:
         return int(self.travel_time.shape[0])
+
+
+class DayExecutor(Protocol):
+    """Runs B SUMO days and returns their results in batch order: `SumoPool` (processes),
+    `RayExecutor` (Ray actors), `InProcessExecutor` (this process), `MemoExecutor` (around one of
+    them: each distinct day once). `choices` [B, N]; `seeds` one or [B]; `is_cav` [N] or [B, N]."""
+
+    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
+                 is_cav: np.ndarray | None = None) -> list[DayResult]: ...
+
+    def close(self) -> None: ...

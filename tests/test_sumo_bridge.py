@@ -94,7 +94,7 @@ def test_repeated_days_are_identical(grid_scenario):
     assert a.same_as(b)
 
 
-def _blocker(scn, choices, tmp_path, duration: int = 1500) -> tuple[Path, str]:
+def make_blocker(scn, choices, tmp_path, duration: int = 1500) -> tuple[Path, str]:
     """An extra vehicle stopping `duration` s on the busiest inner edge: its followers stand still.
 
     (With a permanent blocker the queue behind it drains one vehicle per 600 s under either
@@ -114,7 +114,7 @@ def _blocker(scn, choices, tmp_path, duration: int = 1500) -> tuple[Path, str]:
 def test_deadlocked_day_ends_with_stuck_vehicles_removed(grid_scenario, tmp_path):
     scn = grid_scenario
     choices = scn.fft.argmin(1)
-    add, edge = _blocker(scn, choices, tmp_path)
+    add, edge = make_blocker(scn, choices, tmp_path)
     cfg = SumoConfig(additional_files=(str(add),))
     res = run_day(scn, choices, seed=42, config=cfg)
     stuck = res.status == REMOVED_STUCK
@@ -141,11 +141,11 @@ def test_deadlocked_day_ends_with_stuck_vehicles_removed(grid_scenario, tmp_path
 def test_sumo_teleport_rule_and_hard_cap_also_end_the_day(grid_scenario, tmp_path):
     scn = grid_scenario
     choices = scn.fft.argmin(1)
-    add, _ = _blocker(scn, choices, tmp_path)
+    add, _ = make_blocker(scn, choices, tmp_path)
     res = run_day(scn, choices, seed=42, config=SumoConfig(additional_files=(str(add),), stuck_rule="sumo"))
     assert res.n_removed > 0 and (res.status != REMOVED_CAP).all()
     assert res.teleports == res.n_removed  # SUMO counts its removals as teleports
-    forever, _ = _blocker(scn, choices, tmp_path, duration=10**6)
+    forever, _ = make_blocker(scn, choices, tmp_path, duration=10**6)
     capped = run_day(scn, choices, seed=42,
                      config=SumoConfig(additional_files=(str(forever),), max_sim_time_s=1300))
     assert capped.sim_end_time == 1300

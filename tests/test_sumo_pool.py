@@ -66,8 +66,8 @@ def test_worker_killed_mid_day_is_restarted_and_day_repeated(pool, grid_scenario
     th.join()
     assert killed and pool.restarts == restarts + 1
     assert all(a.same_as(b) for a, b in zip(out, ref, strict=True))
-    assert all(w.proc.is_alive() for w in pool.workers)
-    assert not list(Path(pool.workers[0].shm_dir).glob(f"urbjax-sumo-{killed[0]}-*"))  # files cleaned
+    assert all(w.proc.is_alive() for w in pool.slots)
+    assert not list(Path(pool.slots[0].shm_dir).glob(f"urbjax-sumo-{killed[0]}-*"))  # files cleaned
 
 
 def test_second_failure_raises_with_network_day_and_log(grid_scenario, tmp_path):
@@ -101,12 +101,12 @@ def test_sumo_error_is_reported_with_its_output(grid_scenario, tmp_path):
 
 
 def test_sumo_warnings_go_to_the_worker_log_not_the_console(grid_scenario, tmp_path, capfd):
-    from test_sumo_bridge import _blocker
+    from test_sumo_bridge import make_blocker
 
     from urb_jax.sumo_bridge import SumoConfig
 
     choices = grid_scenario.fft.argmin(1)
-    add, _ = _blocker(grid_scenario, choices, tmp_path)
+    add, _ = make_blocker(grid_scenario, choices, tmp_path)
     cfg = SumoConfig(additional_files=(str(add),), stuck_rule="sumo")  # SUMO warns on each teleport
     with SumoPool(1, config=cfg, log_dir=tmp_path / "logs") as p:
         res = p.run_days(grid_scenario, choices[None], [42])[0]

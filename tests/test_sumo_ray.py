@@ -80,13 +80,12 @@ def test_ray_takes_per_day_cav_masks_and_rejects_bad_batches(rex, grid_scenario)
 def test_network_file_travels_through_the_object_store(rex, grid_scenario, days, tmp_path):
     import dataclasses
 
-    from urb_jax.sumo_bridge.sim import scenario_key
-
     choices, seeds, ref = days
     net = tmp_path / "copy.net.xml"
-    net.write_bytes(Path(grid_scenario.net_file).read_bytes())
+    # an XML comment more: a scenario no actor has seen yet (keys hash the file's content)
+    net.write_bytes(Path(grid_scenario.net_file).read_bytes() + b"\n<!-- copy -->\n")
     scn = dataclasses.replace(grid_scenario, net_file=str(net))
-    rex._payload(scn, scenario_key(scn))  # the driver reads the file once, into the object store
+    rex.put_scenario(scn)  # the driver reads the file once, into the object store
     net.unlink()  # actors cannot read the driver's copy: they must use the shipped bytes
     out = rex.run_days(scn, choices[:2], seeds[:2])
     assert all(a.same_as(b) for a, b in zip(out, ref[:2], strict=True))

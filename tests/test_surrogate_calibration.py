@@ -6,10 +6,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from urb_jax.sumo_bridge.memo import load_day, save_day
 from urb_jax.surrogate.calibrate import FitConfig, SumoSample, calibrate, refit
 from urb_jax.surrogate.data import make_choices
 from urb_jax.surrogate.model import build_static, init_params, predict_jit
-from urb_jax.surrogate.sumo_days import _from_npz, _to_npz, sumo_days
+from urb_jax.surrogate.sumo_days import sumo_days
 
 pytestmark = pytest.mark.sumo
 
@@ -69,8 +70,8 @@ def test_refit_moves_toward_new_days_and_stays_anchored(grid_days):
 def test_day_cache_round_trip(grid_days, tmp_path):
     *_, days = grid_days
     path = tmp_path / "d.npz"
-    _to_npz(path, days[0])
-    back = _from_npz(path)
+    save_day(path, days[0])
+    back = load_day(path)
     np.testing.assert_array_equal(back.travel_time, days[0].travel_time)
     np.testing.assert_array_equal(back.status, days[0].status)
     assert back.seed == days[0].seed and back.teleports == days[0].teleports
