@@ -49,12 +49,20 @@ def test_only_urb_jax_is_installed_at_top_level(site: Path) -> None:
     assert top == {"urb_jax"}
 
 
-def test_the_users_folders_are_inside_the_namespace(site: Path) -> None:
+def test_every_module_and_data_file_is_installed(site: Path) -> None:
+    """Each tracked file of the package (through the links: the user's folders too) is in the
+    installed tree; a room without __init__.py, say, would silently be left out of the wheel."""
     pkg = site / "urb_jax"
-    for rel in ("algorithms/registry.py", "surrogate/model.py", "sumo_bridge/sim.py",
-                "networks/urb_grid/urb_grid.net.xml", "configs/algo/iql/config1.json",
-                "configs/task/config1.json", "game/env.py", "experiment/protocol.py"):
-        assert (pkg / rel).is_file(), rel
+    tracked = subprocess.run(["git", "ls-files"], cwd=REPO, check=True, capture_output=True,
+                             text=True).stdout.split()
+    roots = {"urb_jax/": "", **{f"{d}/": f"{d}/" for d in ("algorithms", "surrogate", "sumo_bridge",
+                                                           "networks", "configs")}}
+    wanted = [roots[r] + f[len(r):] for f in tracked for r in roots
+              if f.startswith(r) and f.endswith((".py", ".json", ".xml", ".csv", ".txt"))
+              and not (REPO / f).is_symlink()]
+    assert len(wanted) > 80 and "algorithms/registry.py" in wanted and "results/__init__.py" in wanted
+    missing = [w for w in wanted if not (pkg / w).is_file()]
+    assert not missing
     assert not (pkg / "algorithms").is_symlink()  # a wheel carries files, not the checkout's links
 
 

@@ -25,6 +25,7 @@ import pyarrow.parquet as pq
 
 from urb_jax.core.errors import UrbJaxError
 
+
 @dataclass(frozen=True)
 class DayRecord:
     """One simulated day, in the Scenario's agent order."""
