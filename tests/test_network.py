@@ -132,7 +132,8 @@ def test_unroutable_pairs_are_found_on_the_graph_before_sampling(grid_copy, monk
         raise AssertionError("routes were sampled before the unroutable pairs were reported")
 
     monkeypatch.setattr(scenario_module, "generate_routes", no_sampling)
-    with pytest.raises(NetworkError, match=r"(?s)agents.csv: \d+ OD pair\(s\) have no route.*all agent ids: \d"):
+    message = r"(?s)agents.csv: \d+ OD pair\(s\) have no route.*all agent ids: \d"
+    with pytest.raises(NetworkError, match=message):
         load_scenario(str(grid_copy), use_cache=False, workers=1)
 
 
