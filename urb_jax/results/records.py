@@ -8,11 +8,8 @@ complete parts; `read_records` reads either form.
 
 from __future__ import annotations
 
-import json
 import os
-import platform
 import shutil
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,64 +42,6 @@ class DayRecord:
 
 RECORDS_FILE = "records.parquet"
 PARTS_DIR = "records.parts"
-
-
-class ResultsExistError(UrbJaxError):
-    """The experiment id is taken."""
-
-
-def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = False) -> Path:
-    """A fresh results/<exp_id>/; refuses an existing one unless `overwrite`."""
-    path = Path(root) / exp_id
-    if path.exists():
-        if not overwrite:
-            raise ResultsExistError(
-                f"{path}: results for experiment id '{exp_id}' already exist. "
-                "Fix: pass another --id, or --overwrite to replace them."
-            )
-        shutil.rmtree(path)
-    path.mkdir(parents=True)
-    return path
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600; results are meant to be shared
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
-def write_json(path: Path, obj: Any) -> None:
-    atomic_write_bytes(path, (json.dumps(obj, indent=2, default=_json_default) + "\n").encode())
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, tuple):
-        return list(o)
-    return str(o)
-
-
-def versions() -> dict[str, str]:
-    """Installed versions (from package metadata: importing libsumo just to ask is costly)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {"python": platform.python_version()}
-    for dist in ("urb-jax", "jax", "numpy", "pandas", "pyarrow", "eclipse-sumo", "libsumo", "janux"):
-        try:
-            out[dist] = version(dist)
-        except PackageNotFoundError:
-            out[dist] = "absent"
-    return out
 
 
 SCHEMA = pa.schema([
