@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from urb_jax.commands.baseline import run_baseline
+from urb_jax.experiment.run import run_baseline
 from urb_jax.results.records import read_records
 
 pytestmark = pytest.mark.sumo
@@ -15,8 +15,8 @@ def test_aon_baseline_on_sumo(tmp_path, grid_scenario, capsys):
 
     out = run_baseline(model="aon", results_dir=str(tmp_path), progress=False,
                        task_overrides={"human_learning_episodes": 5, "training_eps": 2, "test_eps": 3})
-    rec = read_records(out["folder"])
-    assert (out["folder"] / "sumo.log").exists()  # SUMO's messages are kept with the run
+    rec = read_records(out.folder)
+    assert (out.folder / "sumo.log").exists()  # SUMO's messages are kept with the run
     assert sorted(rec["day"].unique()) == list(range(1, 11)) and rec["sumo"].all()
     assert (rec["travel_time"] > 0).all() and (rec.loc[rec.status == 0, "speed"] > 0).all()
     # records hold what SUMO returns: re-simulating day 1's choices gives the same times
@@ -29,12 +29,12 @@ def test_aon_baseline_on_sumo(tmp_path, grid_scenario, capsys):
         pd.DataFrame({"agent": grid_scenario.agent_id,
                       "aon": np.argmin(np.where(grid_scenario.route_valid, grid_scenario.fft, np.inf), 1)}))
     assert len(cav) == 5 * int(0.4 * grid_scenario.n_agents) and (cav["action"] == cav["aon"]).all()
-    m = out["metrics"]
+    m = out.metrics
     t_pre = rec[rec.day <= 5].groupby("day")["travel_time"].mean().mean()
     assert m["t_pre"] == pytest.approx(t_pre, rel=1e-5)
     assert 1.0 < m["t_CAV"] < 30.0 and m["winrate"] in (0.0, 1.0)
     # the last (test) day exported as a routes file: SUMO's own CLI replays it to the recorded times
-    _check_export_replays(out["folder"], grid_scenario, tmp_path, capsys)
+    _check_export_replays(out.folder, grid_scenario, tmp_path, capsys)
 
 
 def _check_export_replays(folder, scn, tmp_path, capsys):

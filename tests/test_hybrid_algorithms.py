@@ -13,8 +13,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor
 
-from urb_jax.commands.train import run_train
-from urb_jax.experiment.hybrid import ALGORITHMS
+from urb_jax.algorithms.registry import ALGORITHMS
+from urb_jax.experiment.run import run_train
 from urb_jax.results.records import read_records
 
 TINY = {
@@ -43,9 +43,9 @@ def test_every_algorithm_runs_the_loop(alg, tmp_path):
     (out,) = run_train(alg=alg, task_conf="test", alg_conf=str(tmp_path / "alg.json"),
                        hybrid_conf=str(tmp_path / "hyb.json"), results_dir=str(tmp_path / "r"), exp_id=alg,
                        progress=False, executor=FakeExecutor())
-    cfg = json.loads((out["folder"] / "exp_config.json").read_text())
+    cfg = json.loads((out.folder / "exp_config.json").read_text())
     assert cfg["status"] == "done" and cfg["sumo_training_days"] >= 2
-    assert np.isfinite(out["metrics"]["t_CAV"]) and np.isfinite(out["metrics"]["t_train"])
+    assert np.isfinite(out.metrics["t_CAV"]) and np.isfinite(out.metrics["t_train"])
 
 
 @pytest.mark.slow
@@ -56,9 +56,9 @@ def test_real_sumo_pool_end_to_end(tmp_path):
     (out,) = run_train(alg="iql", task_conf="test", alg_conf=str(tmp_path / "alg.json"),
                        hybrid_conf=str(tmp_path / "hyb.json"), results_dir=str(tmp_path / "r"), exp_id="real",
                        progress=False)
-    rec = read_records(out["folder"])
-    assert rec["sumo"].all() and rec["day"].max() == 10 + out["summary"]["sumo_training_days"] + 10
+    rec = read_records(out.folder)
+    assert rec["sumo"].all() and rec["day"].max() == 10 + out.summary.sumo_training_days + 10
     assert (rec["status"] == 0).mean() > 0.99  # SUMO arrived trips
     test = rec[rec["phase"] == "test"]
     t_cav = test[test["kind"] == "CAV"]["travel_time"].mean()
-    assert out["metrics"]["t_CAV"] == pytest.approx(t_cav, rel=1e-4)
+    assert out.metrics["t_CAV"] == pytest.approx(t_cav, rel=1e-4)

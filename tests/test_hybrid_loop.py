@@ -15,8 +15,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fakeday import FakeDay
 
-from urb_jax.commands.train import resume_train, run_train
-from urb_jax.experiment import hybrid
+from urb_jax.experiment.checkpoints import latest_checkpoint
+from urb_jax.experiment.hybrid.trainer import HybridTrainer
+from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.results.records import read_records
 
 H, E = 10, 10  # configs/task/test.json
@@ -65,7 +66,7 @@ def _train(confs, tmp_path, exp_id, executor=None, **kw):
 def test_loop_records_and_metric_provenance(confs, tmp_path):
     ex = FakeExecutor()
     (out,) = _train(confs, tmp_path, "run", executor=ex)
-    folder = out["folder"]
+    folder = out.folder
     rec = read_records(folder)
     cfg = json.loads((folder / "exp_config.json").read_text())
     rounds = pd.read_csv(folder / "rounds.csv")
@@ -96,11 +97,11 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     is_cav = ex.batches[-1][1]
     test_days = [FakeDay()(scn, c, seed=42) for c in rest[T:]]
     test_t = np.mean([d.travel_time[is_cav].mean() for d in test_days])
-    assert out["metrics"]["t_CAV"] == pytest.approx(test_t, rel=1e-5)
+    assert out.metrics["t_CAV"] == pytest.approx(test_t, rel=1e-5)
     # ... and in the published tables' measure, SUMO's own trip duration
-    assert out["metrics"]["t_CAV_duration"] == pytest.approx(
+    assert out.metrics["t_CAV_duration"] == pytest.approx(
         np.mean([d.duration[is_cav] for d in test_days]) / 60, rel=1e-5)
-    assert out["metrics"]["t_CAV_duration"] < out["metrics"]["t_CAV"]
+    assert out.metrics["t_CAV_duration"] < out.metrics["t_CAV"]
     # the AON reference: the first test day's humans, every CAV on its minimum free-flow route
     from urb_jax.experiment.baselines import aon_routes
 
@@ -110,7 +111,7 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     assert cfg["aon_same_humans"]["t_HDV"] == pytest.approx(aon_t[~is_cav].mean(), rel=1e-5)
     aon_dur = FakeDay()(scn, aon_day, seed=42).duration
     assert cfg["aon_same_humans"]["t_CAV_duration"] == pytest.approx(aon_dur[is_cav].mean() / 60, rel=1e-5)
-    assert np.isfinite(out["metrics"]["t_pre"]) and np.isfinite(out["metrics"]["t_train"])
+    assert np.isfinite(out.metrics["t_pre"]) and np.isfinite(out.metrics["t_train"])
     assert (folder / "plots" / "surrogate_error.png").is_file()
 
 
@@ -123,23 +124,23 @@ def test_identical_test_days_run_once_with_the_same_metrics(confs, tmp_path):
                       tmp_path, "reuse", executor=reuse_ex)
     n_plain = sum(len(b) for b, _ in plain_ex.batches)
     n_reuse = sum(len(b) for b, _ in reuse_ex.batches)
-    test_days = len(read_records(plain["folder"]).query("phase == 'test'")["day"].unique())
+    test_days = len(read_records(plain.folder).query("phase == 'test'")["day"].unique())
     ran = np.concatenate([b for b, _ in plain_ex.batches])
     distinct = np.unique(ran[-test_days - 1:-1], axis=0).shape[0]  # the AON reference day is last
     aon_is_a_test_day = bool((ran[-test_days - 1:-1] == ran[-1]).all(axis=1).any())
     assert n_reuse == n_plain - test_days + distinct - aon_is_a_test_day < n_plain
-    pd.testing.assert_frame_equal(read_records(plain["folder"]), read_records(reuse["folder"]))
-    for key, value in plain["metrics"].items():
-        assert reuse["metrics"][key] == pytest.approx(value, nan_ok=True)
+    pd.testing.assert_frame_equal(read_records(plain.folder), read_records(reuse.folder))
+    for key, value in plain.metrics.items():
+        assert reuse.metrics[key] == pytest.approx(value, nan_ok=True)
 
 
 @pytest.mark.parametrize("mode", ["sumo", "surrogate"])
 def test_modes(confs, tmp_path, mode):
     ex = FakeExecutor()
     (out,) = _train(confs, tmp_path, mode, executor=ex, mode=mode)
-    rec = read_records(out["folder"])
-    rounds = pd.read_csv(out["folder"] / "rounds.csv")
-    cfg = json.loads((out["folder"] / "exp_config.json").read_text())
+    rec = read_records(out.folder)
+    rounds = pd.read_csv(out.folder / "rounds.csv")
+    cfg = json.loads((out.folder / "exp_config.json").read_text())
     if mode == "sumo":  # 18 budget days in SUMO, 2 per round; no calibration days
         assert cfg["sumo_training_days"] == 18 and cfg["surrogate_training_days"] == 0
         assert "surrogate_days" not in rounds
@@ -147,7 +148,7 @@ def test_modes(confs, tmp_path, mode):
     else:  # no SUMO training day; the test still runs in SUMO
         assert cfg["sumo_training_days"] == 0 and "sumo_days" not in rounds
         assert (rec["phase"] == "train").sum() == 0 and rec["day"].max() == H + E
-    assert np.isfinite(out["metrics"]["t_CAV"])
+    assert np.isfinite(out.metrics["t_CAV"])
 
 
 def _metrics(folder):
@@ -157,34 +158,34 @@ def _metrics(folder):
 @pytest.mark.slow
 def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatch):
     (ref,) = _train(confs, tmp_path, "ref")
-    ref_rec = read_records(ref["folder"])
+    ref_rec = read_records(ref.folder)
 
     # Kill 1: after round 1's checkpoint. Then kill 2 in the middle of round 3's SUMO batch, after
     # a partial resume; the final resume must end exactly like the uninterrupted run.
     (out,) = _train(confs, tmp_path, "killed", stop_after_round=1)
-    assert out["stopped"] == 1 and hybrid.latest_checkpoint(out["folder"])[0] == 1
+    assert out.stopped == 1 and latest_checkpoint(out.folder)[0] == 1
     with pytest.raises(KeyboardInterrupt):
         resume_train("killed", results_dir=str(tmp_path), progress=False,
                      executor=FakeExecutor(fail_on_call=2))  # round 2 runs, round 3's SUMO batch dies
-    assert hybrid.latest_checkpoint(out["folder"])[0] == 2
+    assert latest_checkpoint(out.folder)[0] == 2
 
     # Kill 3: during the round-3 checkpoint, after its record part was flushed (a stale part).
-    real_checkpoint = hybrid._checkpoint
+    real_checkpoint = HybridTrainer.checkpoint
 
-    def dying_checkpoint(folder, rounds_done, *a, **kw):
+    def dying_checkpoint(self, rounds_done):
         if rounds_done == 3:
             raise KeyboardInterrupt("killed while checkpointing")
-        return real_checkpoint(folder, rounds_done, *a, **kw)
+        return real_checkpoint(self, rounds_done)
 
-    monkeypatch.setattr(hybrid, "_checkpoint", dying_checkpoint)
+    monkeypatch.setattr(HybridTrainer, "checkpoint", dying_checkpoint)
     with pytest.raises(KeyboardInterrupt):
         resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
-    monkeypatch.setattr(hybrid, "_checkpoint", real_checkpoint)
-    meta = json.loads((out["folder"] / "checkpoints" / "round_00002" / "meta.json").read_text())
-    assert len(list((out["folder"] / "records.parts").glob("part-*"))) > meta["record_parts"][0]
+    monkeypatch.setattr(HybridTrainer, "checkpoint", real_checkpoint)
+    meta = json.loads((out.folder / "checkpoints" / "round_00002" / "meta.json").read_text())
+    assert len(list((out.folder / "records.parts").glob("part-*"))) > meta["record_parts"][0]
 
     (final,) = resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
-    pd.testing.assert_frame_equal(_metrics(final["folder"]), _metrics(ref["folder"]))
-    pd.testing.assert_frame_equal(read_records(final["folder"]), ref_rec)
-    pd.testing.assert_frame_equal(pd.read_csv(final["folder"] / "rounds.csv").filter(like="time"),
-                                  pd.read_csv(ref["folder"] / "rounds.csv").filter(like="time"))
+    pd.testing.assert_frame_equal(_metrics(final.folder), _metrics(ref.folder))
+    pd.testing.assert_frame_equal(read_records(final.folder), ref_rec)
+    pd.testing.assert_frame_equal(pd.read_csv(final.folder / "rounds.csv").filter(like="time"),
+                                  pd.read_csv(ref.folder / "rounds.csv").filter(like="time"))

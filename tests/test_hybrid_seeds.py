@@ -14,9 +14,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor, H, confs  # noqa: F401  (confs is a fixture)
 
-from urb_jax.commands.train import resume_train, run_train
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.experiment import hybrid
+from urb_jax.experiment.checkpoints import latest_checkpoint
+from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.results.records import read_records
 
 P, ROUNDS = 2, 3
@@ -68,30 +68,30 @@ def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa
     assert cav_batches == [2 * P] * (ROUNDS + 10 // P) + [1]
     assert [len(b) for b, cav in ex.batches if cav is not None] == ([P] * (ROUNDS + 10 // P) + [1]) * 2
     for a, b in zip(together, alone, strict=True):
-        cfg_a = json.loads((a["folder"] / "exp_config.json").read_text())
-        cfg_b = json.loads((b["folder"] / "exp_config.json").read_text())
+        cfg_a = json.loads((a.folder / "exp_config.json").read_text())
+        cfg_b = json.loads((b.folder / "exp_config.json").read_text())
         assert cfg_a["seeds_together"] == 2 and cfg_b["seeds_together"] == 1
         assert cfg_a["group"] == ["pair_s0", "pair_s1"]
-        pd.testing.assert_frame_equal(read_records(a["folder"]), read_records(b["folder"]))
-        pd.testing.assert_frame_equal(_metrics(a["folder"]), _metrics(b["folder"]))
+        pd.testing.assert_frame_equal(read_records(a.folder), read_records(b.folder))
+        pd.testing.assert_frame_equal(_metrics(a.folder), _metrics(b.folder))
         cols = ["sur_time_cav", "sumo_time_cav", "surrogate_mape"]
-        pd.testing.assert_frame_equal(pd.read_csv(a["folder"] / "rounds.csv")[cols],
-                                      pd.read_csv(b["folder"] / "rounds.csv")[cols])
+        pd.testing.assert_frame_equal(pd.read_csv(a.folder / "rounds.csv")[cols],
+                                      pd.read_csv(b.folder / "rounds.csv")[cols])
     # the CLI's one-line seed summary, against each seed's written metrics and AON reference day
     from urb_jax.commands.train import seed_summary
 
-    t = [float(_metrics(o["folder"])["t_CAV"].iloc[0]) for o in together]
-    aon = [json.loads((o["folder"] / "exp_config.json").read_text())["aon_same_humans"]["t_CAV"]
+    t = [float(_metrics(o.folder)["t_CAV"].iloc[0]) for o in together]
+    aon = [json.loads((o.folder / "exp_config.json").read_text())["aon_same_humans"]["t_CAV"]
            for o in together]
     assert aon[0] == aon[1]  # one AON day per group: both seeds share the test humans
-    wins = sum(float(_metrics(o["folder"])["winrate"].iloc[0]) for o in together)
-    dur = [float(_metrics(o["folder"])["t_CAV_duration"].iloc[0]) for o in together]
+    wins = sum(float(_metrics(o.folder)["winrate"].iloc[0]) for o in together)
+    dur = [float(_metrics(o.folder)["t_CAV_duration"].iloc[0]) for o in together]
     assert seed_summary(together) == (
         f"2 seeds: t_CAV {np.mean(t):.4f} (sd {np.std(t, ddof=1):.4f}), at or below AON "
         f"{sum(x <= aon[0] for x in t)}/2, below t_pre {wins:.0f}/2; "
         f"in SUMO duration t_CAV {np.mean(dur):.4f}")
     assert seed_summary(together[:1]) is None
-    r0, r1 = (read_records(o["folder"]) for o in together)
+    r0, r1 = (read_records(o.folder) for o in together)
     assert not np.array_equal(r0[r0["day"] > H]["action"], r1[r1["day"] > H]["action"])  # seeds differ
 
 
@@ -103,7 +103,7 @@ def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa:
     with pytest.raises(KeyboardInterrupt):
         _train(confs, tmp_path, "pair", FakeExecutor(fail_on_call=H + 3), seeds=[0, 1])
     lead, other = tmp_path / "pair_s0", tmp_path / "pair_s1"
-    assert hybrid.latest_checkpoint(lead)[0] == 1  # the group checkpoint lives in the first folder
+    assert latest_checkpoint(lead)[0] == 1  # the group checkpoint lives in the first folder
     assert not (other / "checkpoints").exists()
     meta = json.loads((lead / "checkpoints" / "round_00001" / "meta.json").read_text())
     assert meta["seeds"] == [0, 1] and len(meta["record_parts"]) == 2
@@ -111,9 +111,9 @@ def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa:
     finals = resume_train("pair_s1", results_dir=str(tmp_path), progress=False, executor=ex)
     assert [len(b) for b, _ in ex.batches] == [2 * P] * (ROUNDS - 1 + 10 // P) + [1]  # rounds 2-3, test, AON
     for final, ref in zip(finals, pair["outs"], strict=True):
-        assert final["folder"].name == ref["folder"].name
-        pd.testing.assert_frame_equal(read_records(final["folder"]), read_records(ref["folder"]))
-        pd.testing.assert_frame_equal(_metrics(final["folder"]), _metrics(ref["folder"]))
+        assert final.folder.name == ref.folder.name
+        pd.testing.assert_frame_equal(read_records(final.folder), read_records(ref.folder))
+        pd.testing.assert_frame_equal(_metrics(final.folder), _metrics(ref.folder))
 
 
 @pytest.mark.slow
@@ -122,15 +122,15 @@ def test_human_phase_reuse_equals_own_human_phase(pair, confs, tmp_path):  # noq
     records and metrics equal pair_s0's (which simulated its own)."""
     import shutil
 
-    src = pair["outs"][0]["folder"]
+    src = pair["outs"][0].folder
     shutil.copytree(src, tmp_path / "src")
     ex = FakeExecutor()
     (out,) = _train(confs, tmp_path, "reused", ex, seeds=[0], human_phase_from="src")
     assert all(cav is not None for _, cav in ex.batches)  # only CAV days (training and test) ran
     assert len(ex.batches) == ROUNDS + 10 // P + 1  # + the AON reference day
-    pd.testing.assert_frame_equal(read_records(out["folder"]), read_records(src))
-    pd.testing.assert_frame_equal(_metrics(out["folder"]), _metrics(src))
-    assert json.loads((out["folder"] / "exp_config.json").read_text())["human_phase_from"] == "src"
+    pd.testing.assert_frame_equal(read_records(out.folder), read_records(src))
+    pd.testing.assert_frame_equal(_metrics(out.folder), _metrics(src))
+    assert json.loads((out.folder / "exp_config.json").read_text())["human_phase_from"] == "src"
 
 
 def test_human_phase_reuse_refuses_a_different_phase(confs, tmp_path):  # noqa: F811

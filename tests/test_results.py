@@ -7,16 +7,15 @@ import pandas as pd
 import pytest
 from fakeday import FakeDay
 
-from urb_jax.commands.baseline import run_baseline
 from urb_jax.commands.cli import main
 from urb_jax.experiment.protocol import DayRecord
+from urb_jax.experiment.run import run_baseline
+from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir
 from urb_jax.results.leaderboard import aggregate, collect
 from urb_jax.results.records import (
     PARTS_DIR,
     RECORDS_FILE,
     RecordsWriter,
-    ResultsExistError,
-    create_results_dir,
     read_records,
 )
 
@@ -72,7 +71,7 @@ def test_baseline_run_writes_results_folder_and_leaderboard(tmp_path):
     for seed in (1, 2):
         out = run_baseline(model="random", task_conf="config1", results_dir=str(tmp_path), env_seed=seed,
                            progress=False, day_fn=FakeDay(), task_overrides=TINY)
-    folder = out["folder"]
+    folder = out.folder
     cfg = json.loads((folder / "exp_config.json").read_text())
     assert cfg["status"] == "done" and cfg["env_seed"] == 2 and cfg["baseline_model"] == "random"
     assert cfg["network"] == "urb_grid" and cfg["human_learning_episodes"] == 3 and "versions" in cfg
@@ -114,15 +113,15 @@ def test_human_phase_replay_matches_a_fresh_run(tmp_path):
     replayed = run_baseline(model="random", results_dir=str(tmp_path), exp_id="replayed", progress=False,
                             day_fn=fake, task_overrides=TINY, human_phase_from="src")
     assert len(fake.calls) == 2 + 2  # training + test days only
-    a, b = read_records(fresh["folder"]), read_records(replayed["folder"])
+    a, b = read_records(fresh.folder), read_records(replayed.folder)
     pd.testing.assert_frame_equal(a, b)
-    assert replayed["metrics"]["t_pre"] == src["metrics"]["t_pre"]
+    assert replayed.metrics["t_pre"] == src.metrics["t_pre"]
     with pytest.raises(UrbJaxError, match="env_seed"):
         run_baseline(model="random", results_dir=str(tmp_path), exp_id="other_seed", env_seed=5,
                      progress=False, day_fn=FakeDay(), task_overrides=TINY, human_phase_from="src")
-    rec = read_records(src["folder"])
+    rec = read_records(src.folder)
     rec.loc[(rec.day == 2) & (rec.agent == rec.agent.iloc[0]), "action"] += 1
-    rec.to_parquet(src["folder"] / "records.parquet")
+    rec.to_parquet(src.folder / "records.parquet")
     with pytest.raises(UrbJaxError, match="day 2"):
         run_baseline(model="random", results_dir=str(tmp_path), exp_id="tampered", progress=False,
                      day_fn=FakeDay(), task_overrides=TINY, human_phase_from="src")
@@ -133,15 +132,15 @@ def test_metrics_command_recomputes_a_finished_runs_columns(tmp_path, capsys):
     the run itself wrote; an unfinished run is refused with the fix."""
     out = run_baseline(model="random", results_dir=str(tmp_path), exp_id="old", progress=False,
                        day_fn=FakeDay(), task_overrides=TINY)
-    path = out["folder"] / "metrics" / "BenchmarkMetrics.csv"
+    path = out.folder / "metrics" / "BenchmarkMetrics.csv"
     written = pd.read_csv(path)
     assert written["t_CAV_duration"].iloc[0] == pytest.approx(written["t_CAV"].iloc[0] - 2 / 60)
     written.drop(columns=[c for c in written.columns if c.endswith("_duration")]).to_csv(path, index=False)
-    assert main(["metrics", str(out["folder"])]) == 0
+    assert main(["metrics", str(out.folder)]) == 0
     pd.testing.assert_frame_equal(pd.read_csv(path), written)
     assert "t_CAV_duration" in capsys.readouterr().out
-    cfg = out["folder"] / "exp_config.json"
+    cfg = out.folder / "exp_config.json"
     cfg.write_text(json.dumps({**json.loads(cfg.read_text()), "status": "running"}))
-    assert main(["metrics", str(out["folder"])]) == 2
+    assert main(["metrics", str(out.folder)]) == 2
     err = capsys.readouterr().err
     assert "exp_config.json" in err and "Fix: re-run the baseline" in err

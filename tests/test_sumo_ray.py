@@ -195,7 +195,7 @@ def test_train_with_executor_ray_gives_the_pool_metrics(ray_local, tmp_path):
 def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypatch):
     import json
 
-    from urb_jax.commands import train
+    from urb_jax.experiment import run
 
     for exp in ("a", "b"):  # a killed run recorded with --executor ray --ray-address ...
         (tmp_path / exp).mkdir()
@@ -211,10 +211,10 @@ def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypat
         asked.append((kind, ray_address))
         raise StopError
 
-    monkeypatch.setattr(train, "_setup", lambda args: (None,) * 8)
-    monkeypatch.setattr(train, "_executor", fake_executor)
+    monkeypatch.setattr(run, "load_setup", lambda args: run.TrainSetup(*(None,) * 8))
+    monkeypatch.setattr(run, "make_executor", fake_executor)
     with pytest.raises(StopError):
-        train.resume_train("a", results_dir=str(tmp_path), progress=False)
+        run.resume_train("a", results_dir=str(tmp_path), progress=False)
     with pytest.raises(StopError):
-        train.resume_train("b", results_dir=str(tmp_path), progress=False, executor_kind="pool")
+        run.resume_train("b", results_dir=str(tmp_path), progress=False, executor_kind="pool")
     assert asked == [("ray", "ray://head:10001"), ("pool", "ray://head:10001")]

@@ -15,14 +15,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from urb_jax.core.atomic import write_bytes
     from urb_jax.results.leaderboard import aggregate, collect, to_markdown
-    from urb_jax.results.records import atomic_write_bytes
 
     table = aggregate(collect(args.results_dir))
     md = to_markdown(table)
     base = Path(args.out) if args.out else Path(args.results_dir) / "leaderboard"
-    atomic_write_bytes(base.with_suffix(".md"), md.encode())
-    atomic_write_bytes(base.with_suffix(".csv"), table.to_csv(index=False).encode())
+    write_bytes(base.with_suffix(".md"), md.encode())
+    write_bytes(base.with_suffix(".csv"), table.to_csv(index=False).encode())
     print(md, end="")
     print(f"wrote {base.with_suffix('.md')} and {base.with_suffix('.csv')}")
     return 0

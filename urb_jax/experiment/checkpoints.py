@@ -1,16 +1,33 @@
-"""Checkpoints: pytrees saved with orbax (the hybrid trainer's round checkpoints build on these)."""
+"""Checkpoints: pytrees saved with orbax, and the hybrid trainer's round checkpoints built on them.
+
+A round checkpoint is `checkpoints/round_NNNNN/` in the first folder of a seed group:
+`state/` (orbax, the group's arrays as numbered leaves), `sumo_days.npz` (every SUMO day so far,
+per seed) and `meta.json`, written last, so a directory with `meta.json` is complete. Older
+checkpoints are removed once the new one is complete.
+"""
 
 from __future__ import annotations
 
+import json
+import shutil
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
+import numpy as np
+
+from urb_jax.core.atomic import write_json, write_npz
+from urb_jax.surrogate.calibrate import SumoSample
+
+CKPT_DIR = "checkpoints"
 
 
 def save_checkpoint(path: str | Path, tree: Any) -> Path:
     """Save a pytree with orbax at an absolute path; waits for the async save to finish."""
-    import orbax.checkpoint as ocp
+    import orbax.checkpoint as ocp  # about a second to import: paid only by runs that checkpoint
 
     path = Path(path).expanduser().resolve()
     ckptr = ocp.StandardCheckpointer()
@@ -21,8 +38,72 @@ def save_checkpoint(path: str | Path, tree: Any) -> Path:
 
 def restore_checkpoint(path: str | Path, target: Any) -> Any:
     """Restore a pytree saved by save_checkpoint; `target` gives structure, shapes and dtypes."""
-    import orbax.checkpoint as ocp
+    import orbax.checkpoint as ocp  # as in save_checkpoint
 
     path = Path(path).expanduser().resolve()
     abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, target)
     return ocp.StandardCheckpointer().restore(path, abstract)
+
+
+@dataclass(frozen=True)
+class RoundMeta:
+    """meta.json of a round checkpoint: what a resume needs besides the arrays."""
+
+    rounds_done: int
+    sumo_days: int  # SUMO training days per seed so far
+    seeds: list[int]
+    folders: list[str]  # the seeds' results folders (names)
+    record_parts: list[int]  # per seed: record parts written up to this checkpoint
+    rounds: list[list[dict[str, Any]]]  # per seed: the rounds.csv rows so far
+
+
+def latest_checkpoint(folder: Path) -> tuple[int, Path] | None:
+    """(rounds done, dir) of the newest complete checkpoint (meta.json is written last)."""
+    root = folder / CKPT_DIR
+    done = sorted(int(p.name.split("_")[1]) for p in root.glob("round_*") if (p / "meta.json").is_file())
+    return (done[-1], root / f"round_{done[-1]:05d}") if done else None
+
+
+def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: RoundMeta) -> None:
+    """checkpoints/round_NNNNN/ in `folder` (the group's first), then the older ones removed."""
+    d = folder / CKPT_DIR / f"round_{meta.rounds_done:05d}"
+    if d.exists():
+        shutil.rmtree(d)
+    d.mkdir(parents=True)
+    leaves = jax.tree_util.tree_leaves(state)
+    save_checkpoint(d / "state", {f"{i:05d}": np.asarray(x) for i, x in enumerate(leaves)})
+    arrays = {}
+    for i, sample in enumerate(samples):
+        arrays |= {f"choices_{i}": sample.choices, f"travel_time_{i}": sample.travel_time,
+                   f"arrived_{i}": sample.arrived}
+    write_npz(d / "sumo_days.npz", **arrays)
+    write_json(d / "meta.json", asdict(meta))
+    for old in (folder / CKPT_DIR).glob("round_*"):
+        if old != d:
+            shutil.rmtree(old, ignore_errors=True)
+
+
+def restore_round(folder: Path, target: Any, seeds: Sequence[int]
+                  ) -> tuple[Any, list[SumoSample], RoundMeta]:
+    """The newest complete checkpoint in `folder`: (state shaped like `target`, each seed's SUMO
+    days, meta); raises RuntimeError if there is none or it holds other seeds."""
+    found = latest_checkpoint(folder)
+    if found is None:
+        raise RuntimeError(f"{folder}: no checkpoint to resume from")
+    rounds_done, ckpt = found
+    meta = json.loads((ckpt / "meta.json").read_text())
+    if meta.get("seeds", seeds) != list(seeds):
+        raise RuntimeError(f"{ckpt}: checkpoint holds seeds {meta['seeds']}, not {list(seeds)}")
+    state = _restore_state(ckpt / "state", target)
+    z = np.load(ckpt / "sumo_days.npz")
+    samples = [SumoSample(z[f"choices_{i}"], z[f"travel_time_{i}"], z[f"arrived_{i}"])
+               for i in range(len(seeds))]
+    return state, samples, RoundMeta(rounds_done, meta["sumo_days"], list(seeds), meta.get("folders", []),
+                                     meta["record_parts"], meta["rounds"])
+
+
+def _restore_state(path: Path, target: Any) -> Any:
+    """Orbax stores the state as numbered leaves; `target` (a fresh state) gives the tree."""
+    leaves, treedef = jax.tree_util.tree_flatten(target)
+    flat = restore_checkpoint(path, {f"{i:05d}": np.asarray(x) for i, x in enumerate(leaves)})
+    return jax.tree_util.tree_unflatten(treedef, [jnp.asarray(flat[f"{i:05d}"]) for i in range(len(leaves))])

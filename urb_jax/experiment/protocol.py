@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
+from urb_jax.core.progress import Progress
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.humans import HumanParams, HumanState, act, init_humans, learn
 from urb_jax.game.mutation import draw_cavs
@@ -105,13 +106,11 @@ def run_experiment(
     root = jax.random.PRNGKey(env_seed)
     fft = jnp.asarray(scenario.fft, dtype=jnp.float32)
     valid = np.asarray(scenario.route_valid)
-    bar = _progress(H + T + E) if progress else None
+    bar = Progress(H + T + E, progress)
 
     def simulate(day: int, phase: str, choices: np.ndarray, is_cav: np.ndarray) -> Any:
         res = day_fn(scenario, choices, seed=env_seed, is_cav=is_cav)
-        if bar is not None:
-            bar.set_description(phase)
-            bar.update(1)
+        bar.update(1, phase)
         return res
 
     # Phase 1: human learning.
@@ -153,8 +152,7 @@ def run_experiment(
             obs_all = np.full((n, spec.size), np.nan, dtype=np.float32)
             obs_all[cav_index] = obs
             sink(DayRecord(day, phase, choices, is_cav, res, rewards, obs_all, sumo))
-    if bar is not None:
-        bar.close()
+    bar.close()
     return ExperimentOutcome(is_cav, humans, pstate, H + T + E, H, T, E)
 
 
@@ -202,9 +200,3 @@ def _cav_decisions(policy: CavPolicy, pstate: Any, key: jax.Array, spec: Observa
     joint[cav_index] = actions
     obs = np.asarray(observe(spec, jnp.asarray(joint)))[cav_index]
     return actions, obs
-
-
-def _progress(total: int):
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, unit="day", dynamic_ncols=True, smoothing=0.1)

@@ -8,11 +8,8 @@ complete parts; `read_records` reads either form.
 
 from __future__ import annotations
 
-import json
 import os
-import platform
 import shutil
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +20,11 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from urb_jax.core.atomic import atomic_path, write_bytes
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.results.metrics import compute_metrics, vector_metrics
+from urb_jax.sumo_bridge.types import DayResult
+
 
 
 @dataclass(frozen=True)
@@ -34,7 +35,7 @@ class DayRecord:
     phase: str
     choices: np.ndarray  # [N]
     is_cav: np.ndarray  # [N] bool
-    result: Any  # DayResult
+    result: DayResult
     rewards: np.ndarray  # [N] CAV reward for CAVs, -travel time for humans
     observations: np.ndarray | None  # [N, D], NaN rows for humans; None before mutation
     sumo: bool = True
@@ -42,64 +43,6 @@ class DayRecord:
 
 RECORDS_FILE = "records.parquet"
 PARTS_DIR = "records.parts"
-
-
-class ResultsExistError(UrbJaxError):
-    """The experiment id is taken."""
-
-
-def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = False) -> Path:
-    """A fresh results/<exp_id>/; refuses an existing one unless `overwrite`."""
-    path = Path(root) / exp_id
-    if path.exists():
-        if not overwrite:
-            raise ResultsExistError(
-                f"{path}: results for experiment id '{exp_id}' already exist. "
-                "Fix: pass another --id, or --overwrite to replace them."
-            )
-        shutil.rmtree(path)
-    path.mkdir(parents=True)
-    return path
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600; results are meant to be shared
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
-def write_json(path: Path, obj: Any) -> None:
-    atomic_write_bytes(path, (json.dumps(obj, indent=2, default=_json_default) + "\n").encode())
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, tuple):
-        return list(o)
-    return str(o)
-
-
-def versions() -> dict[str, str]:
-    """Installed versions (from package metadata: importing libsumo just to ask is costly)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {"python": platform.python_version()}
-    for dist in ("urb-jax", "jax", "numpy", "pandas", "pyarrow", "eclipse-sumo", "libsumo", "janux"):
-        try:
-            out[dist] = version(dist)
-        except PackageNotFoundError:
-            out[dist] = "absent"
-    return out
 
 
 SCHEMA = pa.schema([
@@ -126,7 +69,18 @@ class RecordsWriter:
         self.flush_every = flush_every
         self._pending: list[pa.RecordBatch] = []
         self._n_parts = 0
-        self.days_written = 0
+
+    @property
+    def n_parts(self) -> int:
+        """Parts written so far (a round checkpoint records it; `truncate` goes back to it)."""
+        return self._n_parts
+
+    def truncate(self, n_parts: int) -> None:
+        """Drop the parts written after the first `n_parts`: a resumed run writes those days again."""
+        for p in self.parts.glob("part-*.parquet"):
+            if int(p.stem.split("-")[1]) >= n_parts:
+                p.unlink()
+        self._n_parts = n_parts
 
     def __call__(self, rec: DayRecord) -> None:
         self.add(rec)
@@ -160,17 +114,9 @@ class RecordsWriter:
         if not self._pending:
             return
         table = pa.Table.from_batches(self._pending, schema=SCHEMA)
-        path = self.parts / f"part-{self._n_parts:05d}.parquet"
-        fd, tmp = tempfile.mkstemp(dir=self.parts, prefix=".part.", suffix=".tmp")
-        os.close(fd)
-        try:
+        with atomic_path(self.parts / f"part-{self._n_parts:05d}.parquet") as tmp:
             pq.write_table(table, tmp, compression="zstd")
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
         self._n_parts += 1
-        self.days_written += len(self._pending)
         self._pending = []
 
     def close(self) -> Path:
@@ -178,16 +124,9 @@ class RecordsWriter:
         self.flush()
         target = self.folder / RECORDS_FILE
         parts = sorted(self.parts.glob("part-*.parquet"))
-        fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=".records.", suffix=".tmp")
-        os.close(fd)
-        try:
-            with pq.ParquetWriter(tmp, SCHEMA, compression="zstd") as writer:
-                for p in parts:
-                    writer.write_table(pq.read_table(p, schema=SCHEMA))
-            os.replace(tmp, target)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        with atomic_path(target) as tmp, pq.ParquetWriter(tmp, SCHEMA, compression="zstd") as writer:
+            for p in parts:
+                writer.write_table(pq.read_table(p, schema=SCHEMA))
         shutil.rmtree(self.parts)
         return target
 
@@ -209,22 +148,20 @@ def write_run_metrics(folder: Path, human_days: int,
     """A run's metric files (metrics/BenchmarkMetrics.csv, VectorMetrics.csv, atomically) from its
     records: every run's last step, and what `urb-jax metrics` redoes. Returns the metrics and the
     records."""
-    from urb_jax.results.metrics import compute_metrics, vector_metrics
-
     records = read_records(folder)
     metrics = compute_metrics(records, human_days, training_days)
     out = Path(folder) / "metrics"
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / "BenchmarkMetrics.csv", pd.DataFrame([metrics]).to_csv(index=False).encode())
-    atomic_write_bytes(out / "VectorMetrics.csv",
-                       vector_metrics(records, human_days, training_days).to_csv(index=False).encode())
+    write_bytes(out / "BenchmarkMetrics.csv", pd.DataFrame([metrics]).to_csv(index=False).encode())
+    write_bytes(out / "VectorMetrics.csv",
+                vector_metrics(records, human_days, training_days).to_csv(index=False).encode())
     return metrics, records
 
 
 def write_plots(folder: Path, records: pd.DataFrame, human_days: int, training_days: int,
                 smooth_by: int = 1) -> list[Path]:
     """Mean travel time per day by group with phase backgrounds; CAV vs HDV test distributions."""
-    import matplotlib
+    import matplotlib  # imported by the runs that plot; the Agg backend is chosen before pyplot loads
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -1,0 +1,226 @@
+"""The human learning phase: simulate it, save it, or replay an earlier run's instead.
+
+The human phase (H SUMO days, the learned human state, and for the hybrid trainer its calibration
+days) depends only on the network, routes, env seed, human model and demand, not on the CAV
+policy, so runs on the same network and seed can share it (`--human-phase-from EXP_ID`).
+
+One replay mechanism serves both commands: `ReplayHumanPhase` wraps a day function; its first
+`days` calls return the SUMO days recorded by the earlier run, after checking that today's human
+choices are exactly the recorded ones (so a replay can never silently differ from a fresh
+simulation); later calls go to the wrapped day function.
+* `urb-jax baseline`: `load_replay` puts it in front of SUMO's day function.
+* `urb-jax train`: every train run saves `human_phase.npz` (`save_human_phase`: learned human
+  state + calibration days); `reuse_human_phase` replays the recorded human days through
+  `train_humans`, checks the replayed human state against the saved one, and takes the
+  calibration days from the file.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from urb_jax.city.scenario import Scenario
+from urb_jax.core.atomic import write_npz
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.progress import Progress
+from urb_jax.experiment.hybrid.plan import HybridConfig
+from urb_jax.experiment.protocol import DayFn, train_humans
+from urb_jax.game.config import TaskConfig
+from urb_jax.game.humans import HumanState
+from urb_jax.results.records import DayRecord, read_records
+from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult
+from urb_jax.surrogate import build_static, init_params
+from urb_jax.surrogate.data import make_choices
+
+HUMAN_FILE = "human_phase.npz"
+# exp_config keys that must agree for the human phase to be the same.
+MUST_MATCH = ("network", "env_seed", "human_model", "human_alpha", "human_beta", "human_beta_randomness",
+              "human_deterministic", "gamma_c", "gamma_u", "epsilon", "delta", "routerl_literal",
+              "demand_scale", "demand_mode", "demand_jitter_s", "number_of_paths", "path_gen_beta",
+              "num_samples", "num_agents")
+# A train run's also: the phase's length and the calibration days it recorded.
+TRAIN_MUST_MATCH = (*MUST_MATCH, "human_learning_episodes", "hybrid_calib_human_days",
+                    "hybrid_calib_varied_days")
+# The record columns a replay returns (a DayResult's fields, `action` checked against today's choices).
+FIELDS = ("action", "travel_time", "route_length", "speed", "duration", "time_loss", "depart_delay", "status")
+
+
+@dataclass(frozen=True)
+class HumanPhase:
+    """What the shared human phase leaves behind (one per run, shared by every seed)."""
+
+    humans: HumanState
+    records: list[DayRecord]
+    calib_choices: np.ndarray  # [D, N]
+    calib_times: np.ndarray  # [D, N] minutes
+    calib_arrived: np.ndarray  # [D, N]
+
+
+def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor: DayExecutor, env_seed: int,
+                    bar: Progress, calibrate: bool = True) -> HumanPhase:
+    """H SUMO days of human learning, then `calib_varied_days` varied SUMO days for calibration."""
+    records: list[DayRecord] = []
+
+    def simulate(day: int, phase: str, choices: np.ndarray, is_cav: np.ndarray) -> DayResult:
+        res = executor.run_days(scn, choices[None], [env_seed])[0]
+        bar.update(1, f"{phase}/SUMO")
+        return res
+
+    humans = train_humans(scn, task.human_params(), task.human_learning_episodes, env_seed=env_seed,
+                          simulate=simulate, sink=records.append)
+    tail = records[-cfg.calib_human_days:] if calibrate and cfg.calib_human_days > 0 else []
+    choices = [r.choices for r in tail]
+    results = [r.result for r in tail]
+    if calibrate and cfg.calib_varied_days > 0:
+        static = build_static(scn)
+        varied, _ = make_choices(scn, static, init_params(static), cfg.calib_varied_days, seed=env_seed)
+        choices += list(varied)
+        results += executor.run_days(scn, varied, [env_seed] * len(varied))
+        bar.update(len(varied), "calibration/SUMO")
+    if not choices:
+        z = np.zeros((0, scn.n_agents))
+        return HumanPhase(humans, records, z.astype(np.int32), z.astype(np.float32), z.astype(bool))
+    return HumanPhase(humans, records, np.stack(choices).astype(np.int32),
+                      np.stack([r.travel_time for r in results]).astype(np.float32),
+                      np.stack([r.status == ARRIVED for r in results]))
+
+
+def save_human_phase(folder: Path, human: HumanPhase) -> None:
+    """human_phase.npz: the learned human state and the calibration days (atomic)."""
+    write_npz(folder / HUMAN_FILE, calib_choices=human.calib_choices, calib_times=human.calib_times,
+              calib_arrived=human.calib_arrived,
+              **{f"humans_{k}": np.asarray(v) for k, v in human.humans._asdict().items()})
+
+
+class ReplayHumanPhase:
+    """A day function whose first `days` calls are the recorded days of an earlier run."""
+
+    def __init__(self, records: pd.DataFrame, agent_id: np.ndarray, days: int, day_fn: DayFn) -> None:
+        self.days = days
+        self.day_fn = day_fn
+        self.calls = 0
+        rec = records[records["day"] <= days]
+        have = sorted(rec["day"].unique())
+        if have != list(range(1, days + 1)):
+            raise UrbJaxError(f"human phase replay needs days 1..{days}; the source run has {len(have)}.")
+        self._wide = {f: rec.pivot(index="day", columns="agent", values=f).reindex(columns=agent_id)
+                      for f in FIELDS}
+        if self._wide["action"].isna().any().any():
+            raise UrbJaxError("human phase replay: the source run's agents differ from this scenario's.")
+
+    def __call__(self, scenario: Scenario, choices: np.ndarray, *, seed: int,
+                 is_cav: np.ndarray | None = None) -> DayResult:
+        self.calls += 1
+        if self.calls > self.days:
+            return self.day_fn(scenario, choices, seed=seed, is_cav=is_cav)
+        d = self.calls
+        if is_cav is not None and np.asarray(is_cav).any():
+            raise UrbJaxError(f"human phase replay: day {d} has CAVs.")
+        row = {f: self._wide[f].loc[d].to_numpy() for f in FIELDS}
+        recorded = row["action"].astype(np.int64)
+        if not np.array_equal(np.asarray(choices, np.int64), recorded):
+            bad = int((np.asarray(choices) != recorded).sum())
+            raise UrbJaxError(f"human phase replay: on day {d}, {bad} human choices differ from the source.")
+        return _day_result(row, seed)
+
+
+def _day_result(row: dict[str, np.ndarray], seed: int) -> DayResult:
+    """A recorded day's columns as the DayResult SUMO returned (the summary statistics recomputed)."""
+    arrived = row["status"] == ARRIVED
+    f64 = {f: row[f].astype(np.float64) for f in FIELDS if f not in ("action", "status")}
+    return DayResult(
+        travel_time=f64["travel_time"], duration=f64["duration"], route_length=f64["route_length"],
+        mean_speed=f64["speed"], time_loss=f64["time_loss"], depart_delay=f64["depart_delay"],
+        status=row["status"].astype(np.int8), seed=seed,
+        stat_mean_speed=_mean(f64["speed"], arrived),
+        stat_mean_route_length=_mean(f64["route_length"], arrived),
+        stat_mean_duration=_mean(f64["duration"], arrived),
+        teleports=0, n_removed=int((~arrived).sum()), sim_end_time=float("nan"), wall_time=0.0,
+    )
+
+
+def _mean(x: np.ndarray, mask: np.ndarray) -> float:
+    return float(np.nanmean(x[mask])) if mask.any() else float("nan")
+
+
+def _checked_source(source: Path, config: dict[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
+    """The source run's exp_config, after checking that `keys` agree with this run's `config`."""
+    cfg_path = source / "exp_config.json"
+    if not cfg_path.is_file():
+        raise UrbJaxError(f"{cfg_path}: not found. Fix: --human-phase-from takes the experiment id of an "
+                          "earlier run in --results-dir.")
+    src = json.loads(cfg_path.read_text())
+    diff = [f"{k} (source {src.get(k)!r}, this run {config.get(k)!r})" for k in keys
+            if src.get(k) != config.get(k)]
+    if diff:
+        raise UrbJaxError(f"{cfg_path}: its human phase differs from this run's: {'; '.join(diff)}. "
+                          "Fix: reuse a run with the same network, configs and env seed, or drop "
+                          "--human-phase-from.")
+    return src
+
+
+def _replay(source: Path, agent_id: np.ndarray, days: int, day_fn: DayFn) -> ReplayHumanPhase:
+    return ReplayHumanPhase(read_records(source, columns=["day", "agent", *FIELDS]), agent_id, days, day_fn)
+
+
+def load_replay(source: Path, config: dict[str, Any], agent_id: np.ndarray, days: int,
+                day_fn: DayFn) -> ReplayHumanPhase:
+    """`day_fn` behind a replay of `source`'s first `days` days, after checking it ran the same
+    human phase (`urb-jax baseline --human-phase-from`)."""
+    src = _checked_source(source, config, MUST_MATCH)
+    if int(src.get("human_learning_episodes", -1)) < days:
+        raise UrbJaxError(f"{source / 'exp_config.json'}: it has fewer than {days} human days.")
+    return _replay(source, agent_id, days, day_fn)
+
+
+def reuse_human_phase(source: Path, config: dict[str, Any], scn: Scenario, task: TaskConfig,
+                      cfg: HybridConfig, env_seed: int, calibrate: bool = True) -> HumanPhase:
+    """The HumanPhase of the earlier train run in `source`, after checking that its inputs match
+    `config` (this run's exp_config keys); raises UrbJaxError naming the mismatch otherwise."""
+    _checked_source(source, config, TRAIN_MUST_MATCH)
+    path = source / HUMAN_FILE
+    if not path.is_file():
+        raise UrbJaxError(f"{path}: not found (only `urb-jax train` runs save their human phase). "
+                          "Fix: pick a train run, or drop --human-phase-from.")
+    z = np.load(path)
+    calib = _calibration_days(z, path, cfg, calibrate)
+    replay = _replay(source, scn.agent_id, task.human_learning_episodes, _no_more_days)
+    records: list[DayRecord] = []
+
+    def simulate(day: int, phase: str, choices: np.ndarray, is_cav: np.ndarray) -> DayResult:
+        return replay(scn, choices, seed=env_seed, is_cav=None)
+
+    humans = train_humans(scn, task.human_params(), task.human_learning_episodes, env_seed=env_seed,
+                          simulate=simulate, sink=records.append)
+    saved = HumanState(**{k: jnp.asarray(z[f"humans_{k}"]) for k in HumanState._fields})
+    same = jax.tree_util.tree_map(lambda a, b: bool(np.array_equal(np.asarray(a), np.asarray(b),
+                                                                   equal_nan=True)), humans, saved)
+    if not all(jax.tree_util.tree_leaves(same)):
+        raise UrbJaxError(f"{path}: replaying the recorded human days does not give the saved human "
+                          "state (different code or human model?). Fix: drop --human-phase-from.")
+    return HumanPhase(humans, records, *calib)
+
+
+def _calibration_days(z: np.lib.npyio.NpzFile, path: Path, cfg: HybridConfig, calibrate: bool
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(choices, times, arrived) of the saved calibration days this run uses (none without calibration)."""
+    calib = (z["calib_choices"], z["calib_times"], z["calib_arrived"])
+    want = (cfg.calib_human_days + cfg.calib_varied_days) if calibrate else 0
+    if len(calib[0]) < want:
+        raise UrbJaxError(f"{path}: mode (the source recorded {len(calib[0])} calibration days, this run "
+                          f"needs {want}; a --mode sumo run records none). Fix: reuse a hybrid or "
+                          "surrogate run.")
+    return calib if calibrate else (calib[0][:0], calib[1][:0], calib[2][:0])
+
+
+def _no_more_days(scenario: Scenario, choices: np.ndarray, *, seed: int,
+                  is_cav: np.ndarray | None = None) -> DayResult:
+    raise UrbJaxError("human phase replay: asked for more days than the source's human phase.")

@@ -1,0 +1,85 @@
+"""The hybrid trainer's budget: its config, how many rounds of what size, and the learner fitted to it."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from urb_jax.algorithms.configs import IPPOStarConfig, IQLConfig, IQLStarConfig, MixerConfig, PPOConfig
+from urb_jax.algorithms.learner import Learner
+from urb_jax.algorithms.registry import algorithm
+from urb_jax.core.configio import find_config, load_json
+from urb_jax.game.env import RoutingEnv
+
+MODES = ("hybrid", "sumo", "surrogate")
+# The config of any algorithm of urb_jax.algorithms.registry.ALGORITHMS.
+AlgoConfig = IQLConfig | PPOConfig | MixerConfig | IQLStarConfig | IPPOStarConfig
+
+
+@dataclass(frozen=True)
+class HybridConfig:
+    """Round sizes and budget (configs/hybrid/*.json)."""
+
+    train_days: int = 1000  # URB-equivalent training days (surrogate env-days + SUMO days)
+    num_envs: int = 16  # parallel surrogate envs (replaces the algorithm's num_envs)
+    surrogate_days_per_round: int = 640  # surrogate env-days per round (rounded to whole iterations)
+    sumo_days_per_round: int = 4  # P
+    sumo_updates: int = 1  # updates on each round's SUMO days
+    sumo_workers: int = 2
+    calib_human_days: int = 50
+    calib_varied_days: int = 8
+    calib_steps: int = 600
+    refit_days: int = 32
+    refit_steps: int = 150
+    day_timeout_s: float = 600.0
+    max_vmapped_seeds: int = 8  # seeds trained together under vmap; longer seed lists train in groups
+    route_bias: bool = True  # correct the surrogate by SUMO's mean residual per (agent, route) driven
+    route_bias_prior_days: float = 2.0  # shrinkage: residual x count / (count + prior days)
+    reuse_identical_test_days: bool = True  # SUMO is deterministic: a repeated test day runs once
+
+
+def load_hybrid_config(name: str = "default") -> tuple[HybridConfig, Path]:
+    path = find_config("hybrid", name)
+    return load_json(HybridConfig, path), path
+
+
+class RoundPlan(NamedTuple):
+    n_rounds: int
+    iters: int  # learner iterations on the surrogate per round
+    surrogate_days: int  # surrogate env-days per round
+    sumo_days: int  # SUMO training days per round (per seed)
+
+
+def iters_per_round(cfg: HybridConfig, days_per_iter: int, mode: str) -> int:
+    """Learner iterations on the surrogate per round (each collects days_per_iter x num_envs days)."""
+    if mode == "sumo":
+        return 0
+    return max(1, round(cfg.surrogate_days_per_round / (days_per_iter * cfg.num_envs)))
+
+
+def plan_rounds(cfg: HybridConfig, mode: str, days_per_iter: int) -> RoundPlan:
+    """Rounds of surrogate iterations and SUMO days that spend `train_days`."""
+    iters = iters_per_round(cfg, days_per_iter, mode)
+    sur = iters * days_per_iter * cfg.num_envs
+    sumo = cfg.sumo_days_per_round if mode != "surrogate" else 0
+    return RoundPlan(max(1, math.ceil(cfg.train_days / max(sur + sumo, 1))), iters, sur, sumo)
+
+
+def learner_for(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, n_rounds: int,
+                mode: str, n_iters_round: int = 1) -> tuple[Learner, AlgoConfig]:
+    """The algorithm's learner with num_envs and schedule lengths fitted to the hybrid budget:
+    epsilon schedules (linear over n_iters, or IQL*'s per-update decay) end where URB's end."""
+    fields = {f.name for f in dataclasses.fields(alg_config)}
+    upd: dict[str, Any] = {"num_envs": cfg.num_envs}
+    sumo_updates = cfg.sumo_updates if mode != "surrogate" else 0
+    if "agent_frames_per_batch" in fields:  # TorchRL family: epsilon schedules span n_iters iterations
+        per_iter = alg_config.agent_frames_per_batch
+        upd["n_iters"] = max(1, math.ceil(n_rounds * (n_iters_round * per_iter + sumo_updates) / per_iter))
+    if "eps_decay" in fields:  # IQL*: URB decays once per update over num_episodes updates
+        updates = max(1, n_rounds * (n_iters_round + sumo_updates))
+        upd["eps_decay"] = float(alg_config.eps_decay ** (alg_config.num_episodes / updates))
+    alg_config = dataclasses.replace(alg_config, **upd)
+    return algorithm(alg).make_learner(alg_config, env), alg_config

@@ -1,0 +1,427 @@
+"""One seed group's hybrid training: setup, start or resume, rounds, test.
+
+A round is a surrogate leg (`surrogate_days_per_round` env-days of learner iterations), a SUMO
+leg (P SUMO days played by the exploring policies, `sumo_updates` updates on them), a refit of
+each seed's surrogate (mode hybrid) and a checkpoint. Every random choice of round r flows from
+fold_in(k_rounds, r) and the checkpointed state, so a resumed group ends like an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from urb_jax.algorithms.learner import Day
+from urb_jax.city.scenario import Scenario
+from urb_jax.core.progress import Progress
+from urb_jax.experiment.baselines import aon_routes
+from urb_jax.experiment.checkpoints import RoundMeta, restore_round, save_round
+from urb_jax.experiment.human_phase import HumanPhase
+from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns
+from urb_jax.experiment.hybrid.plan import (
+    MODES,
+    AlgoConfig,
+    HybridConfig,
+    RoundPlan,
+    learner_for,
+    plan_rounds,
+)
+from urb_jax.experiment.protocol import PHASE_TEST, PHASE_TRAIN
+from urb_jax.game.config import EnvConfig, TaskConfig
+from urb_jax.game.env import EnvState, RoutingEnv
+from urb_jax.game.humans import HumanState, init_humans
+from urb_jax.game.mutation import draw_cavs
+from urb_jax.results.records import DayRecord, RecordsWriter
+from urb_jax.sumo_bridge import DayExecutor, DayResult
+from urb_jax.sumo_bridge.memo import MemoExecutor
+from urb_jax.surrogate import SumoSample, build_static, init_params, predict
+from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_params, route_bias, without_bias
+from urb_jax.surrogate.model import Static
+
+Row = dict[str, float]  # one seed's rounds.csv row
+
+
+class GroupKeys(NamedTuple):
+    """Each seed's root keys, split from PRNGKey(seed): [S, 2] each."""
+
+    rounds: jax.Array
+    test: jax.Array
+    start: jax.Array
+
+
+class TrainState(NamedTuple):
+    """The arrays a round carries and checkpoints, each with a leading seed axis."""
+
+    runner: Runner  # [S]
+    real: EnvState  # the real humans, P copies per seed [S, P]
+    params: Params  # each seed's surrogate [S]
+
+
+@dataclass(frozen=True)
+class Group:
+    """What every step of a seed group's training reads; fixed after `setup_group`."""
+
+    scn: Scenario
+    cfg: HybridConfig
+    mode: str
+    seeds: list[int]
+    env_seed: int
+    folders: list[Path]
+    S: int  # seeds
+    P: int  # SUMO days per round and seed
+    H: int  # human days
+    E: int  # test days
+    is_cav: np.ndarray  # [N]
+    cav_index: np.ndarray  # [C]
+    static: Static
+    p0: Params  # the uncalibrated surrogate, no route bias
+    plan: RoundPlan
+    alg_config: AlgoConfig
+    fns: TrainerFns
+    keys: GroupKeys
+
+
+@dataclass(frozen=True)
+class TrainSummary:
+    """One seed's run, for its exp_config.json and rounds.csv."""
+
+    rounds: list[Row]
+    human_days: int
+    sumo_training_days: int
+    n_rounds: int
+    surrogate_days: int
+    alg_config: dict[str, Any]
+    seeds_together: int
+    aon_same_humans: dict[str, float]
+
+
+@dataclass(frozen=True)
+class Stopped:
+    """A group stopped after `rounds_done` rounds' checkpoint (`stop_after_round`: a kill, for tests)."""
+
+    rounds_done: int
+
+
+def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, alg_config: AlgoConfig,
+                cfg: HybridConfig, mode: str, seeds: list[int], env_seed: int, folders: list[Path],
+                humans: HumanState | None) -> Group:
+    """Mutation, the surrogate env, the learner fitted to the budget and its jitted pieces.
+    `humans`: the human phase's; None for a resume (then a placeholder the checkpoint replaces)."""
+    if mode not in MODES:
+        raise ValueError(f"mode {mode!r}: use one of {MODES}")
+    n = scn.n_agents
+    hp = task.human_params()
+    is_cav = draw_cavs(env_seed, n, task.ratio_machines, agent_id=scn.agent_id)
+    static = build_static(scn)
+
+    def sur_fn(params: Params, choices: jnp.ndarray) -> jnp.ndarray:
+        return predict(params, static, choices)
+
+    env_kwargs = dict(human_params=hp, reward_coefficients=task.reward_coefficients,
+                      observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt)
+    p0 = {**init_params(static), "route_bias": jnp.zeros((n, scn.k), jnp.float32)}
+    if humans is None:  # shapes only: the checkpoint overwrites it
+        humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid), hp)
+    env = RoutingEnv(scn, is_cav, sur_fn, human_init=humans, travel_params=p0, **env_kwargs)
+    probe, _ = learner_for(alg, alg_config, env, cfg, 1, mode)
+    plan = plan_rounds(cfg, mode, probe.days_per_iter)
+    learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
+    fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters)
+    keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
+    return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,
+                 task.human_learning_episodes, task.test_eps, is_cav, np.flatnonzero(is_cav), static, p0,
+                 plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]))
+
+
+class HybridTrainer:
+    """Trains a seed group: `start` (fresh) or `resume`, `run_round` per round, then `test`.
+
+    Holds the group's moving parts: the arrays (`state`), each seed's SUMO days so far (`samples`,
+    what the surrogate refits on), rounds.csv rows and the SUMO training days done."""
+
+    def __init__(self, g: Group, executor: DayExecutor, writers: list[RecordsWriter], bar: Progress) -> None:
+        self.g, self.executor, self.writers, self.bar = g, executor, writers, bar
+        self.tag = f"[{g.S} seeds] " if g.S > 1 else ""
+        self.state: TrainState
+        self.samples: list[SumoSample] = []
+        self.rounds_logs: list[list[Row]] = [[] for _ in g.seeds]
+        self.sumo_done = 0
+
+    # ---- start, resume, checkpoint
+    def fresh_state(self) -> TrainState:
+        runner, real = self.g.fns.fresh_runner_real(self.g.keys.start)
+        return TrainState(runner, real, _stack([self.g.p0] * self.g.S))
+
+    def start(self, human: HumanPhase) -> int:
+        """Records the human phase, calibrates the surrogate on its calibration days (the same for
+        every seed), puts the trained humans in every real env and checkpoints round 0."""
+        g = self.g
+        state = self.fresh_state()
+        for writer in self.writers:
+            for rec in human.records:
+                writer.add(rec)
+        sample0 = SumoSample(human.calib_choices, human.calib_times, human.calib_arrived)
+        if g.mode != "sumo" and len(sample0):
+            fitted = self.fit(g.p0, sample0, FitConfig(steps=g.cfg.calib_steps), sample0)
+            state = state._replace(params=_stack([fitted] * g.S))
+        real = state.real._replace(humans=jax.tree_util.tree_map(
+            lambda x: jnp.broadcast_to(x, (g.S, g.P, *x.shape)), human.humans))
+        self.state = state._replace(real=real)
+        self.samples = [sample0] * g.S
+        for writer in self.writers:
+            writer.flush()
+        self.checkpoint(0)
+        self.set_params()
+        return 0
+
+    def resume(self) -> int:
+        """The group's newest checkpoint; every seed's record parts written after it are dropped."""
+        state, self.samples, meta = restore_round(self.g.folders[0], self.fresh_state()._asdict(),
+                                                  self.g.seeds)
+        self.state = TrainState(**state)
+        self.rounds_logs, self.sumo_done = meta.rounds, meta.sumo_days
+        for writer, parts in zip(self.writers, meta.record_parts, strict=True):
+            writer.truncate(parts)
+        self.set_params()
+        return meta.rounds_done
+
+    def checkpoint(self, rounds_done: int) -> None:
+        g = self.g
+        meta = RoundMeta(rounds_done, self.sumo_done, list(g.seeds), [f.name for f in g.folders],
+                         [w.n_parts for w in self.writers], self.rounds_logs)
+        save_round(g.folders[0], self.state._asdict(), self.samples, meta)
+
+    def set_params(self) -> None:
+        """The training envs of every seed's runner get the seed's current surrogate parameters."""
+        s = self.state
+        runner = s.runner._replace(env_states=self.g.fns.set_params(s.runner.env_states, s.params))
+        self.state = s._replace(runner=runner)
+
+    # ---- a round
+    def run_round(self, r: int) -> None:
+        g = self.g
+        rk = g.fns.round_keys(g.keys.rounds, r)  # [S, 4, 2]
+        k_sur, k_act, k_step, k_upd = rk[:, 0], rk[:, 1], rk[:, 2], rk[:, 3]
+        rows: list[Row] = [{"round": r + 1} for _ in g.seeds]
+        if g.plan.surrogate_days:
+            self.surrogate_leg(k_sur, rows)
+        if g.plan.sumo_days:
+            self.sumo_leg(r, k_act, k_step, k_upd, rows)
+        for log, row in zip(self.rounds_logs, rows, strict=True):
+            log.append(row)
+        for writer in self.writers:
+            writer.flush()
+        self.checkpoint(r + 1)
+
+    def surrogate_leg(self, k_sur: jax.Array, rows: list[Row]) -> None:
+        """The round's learner iterations on the surrogate envs (one vmapped lax.scan)."""
+        g, days = self.g, self.g.plan.surrogate_days
+        t0 = time.perf_counter()
+        runner, m = g.fns.sur_round(self.state.runner, k_sur)
+        self.state = self.state._replace(runner=runner)
+        m = {k: np.asarray(v).reshape(g.S, -1).mean(1) for k, v in m.items()}
+        dt = time.perf_counter() - t0
+        for i, row in enumerate(rows):
+            row |= {"surrogate_days": days, "surrogate_s": dt,
+                    "sur_time_cav": float(m["time_cav"][i]), "sur_time_hdv": float(m["time_human"][i])}
+        self.bar.update(g.S * days, self.tag + "train/surrogate", sur_days_s=g.S * days / dt,
+                        sur_tCAV=float(m["time_cav"].mean()), sur_tHDV=float(m["time_human"].mean()))
+
+    def sumo_leg(self, r: int, k_act: jax.Array, k_step: jax.Array, k_upd: jax.Array,
+                 rows: list[Row]) -> None:
+        """P SUMO days per seed played by the exploring policies, updates on them, their records,
+        then (mode hybrid) the refit."""
+        g = self.g
+        t0 = time.perf_counter()
+        choices, results, times, days = self.play_sumo_days(k_act, k_step, k_upd)
+        pred = np.asarray(g.fns.predict_days(self.state.params, jnp.asarray(choices)))  # before the refit
+        for i in range(g.S):
+            res_i = results[i * g.P:(i + 1) * g.P]
+            self.samples[i] = self.samples[i] + SumoSample.from_days(choices[i], res_i)
+            record_days(self.writers[i], g.H + self.sumo_done, PHASE_TRAIN, choices[i], g.is_cav, res_i,
+                        _take(days, i), g.cav_index)
+        self.sumo_done += g.P
+        if g.mode == "hybrid":
+            self.refit(r)
+        dt = time.perf_counter() - t0
+        for i, row in enumerate(rows):
+            row |= sumo_row(times[i], pred[i], g.P, dt, g.is_cav, g.cav_index)
+        self.bar.update(g.S * g.P, self.tag + "train/SUMO", sumo_days_s=g.S * g.P / dt,
+                        sumo_tCAV=float(np.mean([row["sumo_time_cav"] for row in rows])),
+                        sumo_tHDV=float(np.mean([row["sumo_time_hdv"] for row in rows])))
+
+    def play_sumo_days(self, k_act: jax.Array, k_step: jax.Array, k_upd: jax.Array
+                       ) -> tuple[np.ndarray, list[DayResult], np.ndarray, Day]:
+        """(choices [S, P, N], SUMO results [S * P], times [S, P, N], days): the S x P days go to the
+        executor as one batch; the real humans advance by SUMO's times; `sumo_updates` updates."""
+        g, s = self.g, self.state
+        n = g.scn.n_agents
+        obs, actions, choices = g.fns.act_explore(s.runner, g.fns.split_p(k_act), s.real)
+        choices = np.asarray(choices)  # [S, P, N]
+        results = self.executor.run_days(g.scn, choices.reshape(g.S * g.P, n), [g.env_seed] * (g.S * g.P),
+                                         is_cav=g.is_cav)
+        times = np.stack([res.travel_time for res in results]).astype(np.float32).reshape(g.S, g.P, n)
+        real, days = g.fns.sumo_step(g.fns.split_p(k_step), s.real, obs, actions, jnp.asarray(times))
+        runner = s.runner
+        for u in range(g.cfg.sumo_updates):
+            runner, _ = g.fns.update(runner, days, jax.vmap(lambda k, u=u: jax.random.fold_in(k, u))(k_upd))
+        self.state = s._replace(runner=runner, real=real)
+        return choices, results, times, days
+
+    def refit(self, r: int) -> None:
+        """Each seed refits its surrogate on `refit_days` of its SUMO days (a fixed-size sample drawn
+        from default_rng([seed, r]), so the jitted fit never recompiles)."""
+        g = self.g
+        refit_cfg = dataclasses.replace(REFIT, steps=g.cfg.refit_steps)
+        new_params = []
+        for i, seed in enumerate(g.seeds):
+            sample = self.samples[i]
+            rng = np.random.default_rng([seed, r, 0xF17])
+            pick = rng.choice(len(sample), size=g.cfg.refit_days, replace=len(sample) < g.cfg.refit_days)
+            sub = SumoSample(sample.choices[pick], sample.travel_time[pick], sample.arrived[pick])
+            new_params.append(self.fit(_take(self.state.params, i), sub, refit_cfg, sample))
+        self.state = self.state._replace(params=_stack(new_params))
+        self.set_params()
+
+    def fit(self, start: Params, sub: SumoSample, fit_cfg: FitConfig, full: SumoSample) -> Params:
+        """Gradient fit of the smooth model on `sub`, then the per-route residual on all SUMO days."""
+        g = self.g
+        fitted = fit_params(without_bias(start), g.static, sub, fit_cfg)
+        bias = (route_bias(fitted, g.static, full, g.cfg.route_bias_prior_days) if g.cfg.route_bias
+                else jnp.zeros_like(g.p0["route_bias"]))
+        return {**fitted, "route_bias": bias}
+
+    # ---- test
+    def test(self) -> dict[str, float]:
+        """`test_eps` SUMO days of the frozen greedy policies, S x P at a time (a repeated day runs
+        once with `reuse_identical_test_days`), then the AON reference day."""
+        g = self.g
+        executor = MemoExecutor(self.executor) if g.cfg.reuse_identical_test_days else self.executor
+        first_test_choices = None
+        for start_day in range(0, g.E, g.P):
+            choices = self.test_days(start_day, executor)
+            if start_day == 0:
+                first_test_choices = choices[0, 0]
+        if first_test_choices is None:
+            return {}
+        return aon_same_humans(g.scn, first_test_choices, g.is_cav, executor, g.env_seed)
+
+    def test_days(self, start_day: int, executor: DayExecutor) -> np.ndarray:
+        """Test days start_day + 1 .. + b (b <= P) of every seed; returns their choices [S, b, N]."""
+        g, s = self.g, self.state
+        n, b = g.scn.n_agents, min(g.P, g.E - start_day)
+        kt = jax.vmap(lambda k, d=start_day: jax.random.split(jax.random.fold_in(k, d)))(g.keys.test)
+        obs, actions, choices = g.fns.act_greedy(s.runner, g.fns.split_p(kt[:, 0]), s.real)
+        choices = np.asarray(choices)[:, :b]  # [S, b, N]
+        results = executor.run_days(g.scn, choices.reshape(g.S * b, n), [g.env_seed] * (g.S * b),
+                                    is_cav=g.is_cav)
+        times = np.zeros((g.S, g.P, n), np.float32)
+        times[:, :b] = np.stack([res.travel_time for res in results]).reshape(g.S, b, n)
+        times[:, b:] = times[:, :1]
+        real, days = g.fns.sumo_step(g.fns.split_p(kt[:, 1]), s.real, obs, actions, jnp.asarray(times))
+        self.state = s._replace(real=real)
+        for i in range(g.S):
+            days_i = jax.tree_util.tree_map(lambda x, b=b, i=i: x[i, :, :b], days)
+            record_days(self.writers[i], g.H + g.plan.n_rounds * g.plan.sumo_days + start_day, PHASE_TEST,
+                        choices[i], g.is_cav, results[i * b:(i + 1) * b], days_i, g.cav_index)
+        self.bar.update(g.S * b, self.tag + "test/SUMO", sumo_tCAV=float(
+            times[:, :b][..., g.cav_index].mean()) if g.cav_index.size else 0.0)
+        return choices
+
+    def summaries(self, aon: dict[str, float]) -> list[TrainSummary]:
+        g, plan = self.g, self.g.plan
+        return [TrainSummary(log, g.H, plan.n_rounds * plan.sumo_days, plan.n_rounds,
+                             plan.n_rounds * plan.surrogate_days, dataclasses.asdict(g.alg_config), g.S, aon)
+                for log in self.rounds_logs]
+
+
+def train_group(
+    *, scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, alg_config: AlgoConfig,
+    cfg: HybridConfig, mode: str, seeds: list[int], env_seed: int, folders: list[Path],
+    executor: DayExecutor, human: HumanPhase | None, progress: bool = True,
+    stop_after_round: int | None = None,
+) -> list[TrainSummary] | Stopped:
+    """Train S seeds together, seed s in `folders[s]` (fresh when `human` is given, else resumed from
+    the group checkpoint in `folders[0]`); returns one summary per seed.
+
+    Every learner function is vmapped over a leading seed axis (runner [S], real humans [S, P],
+    surrogate parameters [S]); each round's S x P SUMO days go to the executor in one batch, and
+    the test days likewise. Each seed refits its own surrogate on its own SUMO days (a loop over
+    seeds outside the jitted training). `stop_after_round` simulates a kill (tests)."""
+    g = setup_group(scn, task, env_cfg, alg, alg_config, cfg, mode, seeds, env_seed, folders,
+                    human.humans if human is not None else None)
+    writers = [RecordsWriter(f, scn.agent_id, scn.agent_od, scn.agent_depart, flush_every=10**9)
+               for f in folders]
+    plan, per_round = g.plan, g.plan.surrogate_days + g.plan.sumo_days
+    bar = Progress(g.S * (g.H + plan.n_rounds * per_round + g.E), progress)
+    trainer = HybridTrainer(g, executor, writers, bar)
+    start = trainer.start(human) if human is not None else trainer.resume()
+    bar.update(g.S * (g.H + start * per_round), trainer.tag + ("resume" if human is None else "human"))
+    for r in range(start, plan.n_rounds):
+        trainer.run_round(r)
+        if stop_after_round is not None and r + 1 >= stop_after_round:
+            bar.close()
+            return Stopped(r + 1)
+    aon = trainer.test()
+    bar.close()
+    for writer in writers:
+        writer.close()
+    return trainer.summaries(aon)
+
+
+def aon_same_humans(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray, executor: DayExecutor,
+                    env_seed: int) -> dict[str, float]:
+    """One SUMO day: `choices`' humans, the CAVs on their minimum free-flow route.
+
+    The quality bar is "t_CAV at or below AON's", and with frozen deterministic humans (task
+    config1, Scenario 1) this day *is* URB's AON baseline on the same test humans (with stochastic
+    humans, AON on the first test day's human draw), so each run reports
+    it next to its own t_CAV (exp_config.json) at the cost of one SUMO day. Not a run day: it is
+    not in the records or in any metric."""
+    mixed = np.where(is_cav, aon_routes(scn.fft, scn.route_valid), choices)
+    res = executor.run_days(scn, mixed[None], [env_seed], is_cav=is_cav)[0]
+    nan = float("nan")
+    return {"t_CAV": float(res.travel_time[is_cav].mean()) if is_cav.any() else nan,
+            "t_HDV": float(res.travel_time[~is_cav].mean()) if (~is_cav).any() else nan,
+            # the published tables' measure (urb_jax.metrics.DURATION_COLUMNS)
+            "t_CAV_duration": float(np.nanmean(res.duration[is_cav]) / 60) if is_cav.any() else nan}
+
+
+def record_days(writer: RecordsWriter, first_day_minus1: int, phase: str, choices: np.ndarray,
+                is_cav: np.ndarray, results: Sequence[DayResult], days: Day, cav_index: np.ndarray) -> None:
+    """One seed's SUMO days as DayRecords: humans' reward is -time, CAVs' the env's (days [1, P, ...])."""
+    obs = np.asarray(days.obs[0])  # [P, C, D]
+    rewards = np.asarray(days.reward[0])
+    for p, res in enumerate(results):
+        times = np.asarray(res.travel_time, dtype=np.float64)
+        rew = -times.copy()
+        rew[cav_index] = rewards[p]
+        obs_all = np.full((choices.shape[1], obs.shape[-1]), np.nan, np.float32)
+        obs_all[cav_index] = obs[p]
+        writer.add(DayRecord(first_day_minus1 + p + 1, phase, choices[p], is_cav, res, rew, obs_all, True))
+
+
+def sumo_row(t: np.ndarray, pred: np.ndarray, P: int, dt: float, is_cav: np.ndarray,
+             cav_index: np.ndarray) -> Row:
+    """A seed's rounds.csv SUMO columns from its SUMO times t and the surrogate's prediction pred [P, N]."""
+    sumo_cav = float(t[:, cav_index].mean()) if cav_index.size else float("nan")
+    return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": sumo_cav,
+            "sumo_time_hdv": float(t[:, ~is_cav].mean()),
+            "surrogate_mean_error": float((pred.mean(1) - t.mean(1)).mean() / t.mean()),
+            "surrogate_mape": float(np.mean(np.abs(pred - t) / t))}
+
+
+def _stack(trees: list[Any]) -> Any:
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *trees)
+
+
+def _take(tree: Any, s: int) -> Any:
+    return jax.tree_util.tree_map(lambda x: x[s], tree)

@@ -1,0 +1,321 @@
+"""Runs below the commands: `run_train` / `resume_train` (the hybrid trainer) and `run_baseline`
+(URB's experiment with a baseline policy, every day in SUMO).
+
+Each creates its results folder(s) and exp_config.json, gets a SUMO executor (a process pool, Ray,
+or the caller's), runs, and finishes: metric files and plots from the records, rounds.csv for
+train runs, exp_config.json marked done with the wall time (`urb_jax.experiment.run_folder`).
+The commands parse arguments and print; tests and benchmarks call these directly.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import json
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from urb_jax import __version__
+from urb_jax.algorithms.registry import load_algo_config
+from urb_jax.city.demand import scale_demand
+from urb_jax.city.network import DEFAULT_NETWORK
+from urb_jax.city.scenario import Scenario, load_scenario
+from urb_jax.core.configio import to_dict
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.progress import Progress
+from urb_jax.experiment.baselines import make_baseline
+from urb_jax.experiment.human_phase import (
+    HumanPhase,
+    load_replay,
+    reuse_human_phase,
+    run_human_phase,
+    save_human_phase,
+)
+from urb_jax.experiment.hybrid.plan import AlgoConfig, HybridConfig, load_hybrid_config
+from urb_jax.experiment.hybrid.trainer import Stopped, TrainSummary, train_group
+from urb_jax.experiment.protocol import DayFn, run_experiment
+from urb_jax.experiment.run_folder import (
+    CONFIG_FILE,
+    create_results_dir,
+    mark_done,
+    versions,
+    write_config,
+    write_outputs,
+    write_rounds,
+)
+from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
+from urb_jax.results.records import RecordsWriter
+from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoPool, run_day
+from urb_jax.sumo_bridge.ray_executor import RayExecutor
+
+TrainArgs = dict[str, Any]  # a train run's arguments as exp_config.json records them ("train_args")
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What a run returns to its command."""
+
+    folder: Path
+    metrics: dict[str, float]  # empty for a stopped run
+    wall_time_s: float
+    summary: TrainSummary | None = None  # train runs
+    stopped: int | None = None  # train runs stopped by `stop_after_round` (tests): rounds done
+    days: int = 0  # baseline runs: every day of the run
+    replayed_days: int = 0  # baseline runs: human days replayed from --human-phase-from
+
+
+class TrainSetup(NamedTuple):
+    """Scenario and configs of a train run, loaded from its arguments."""
+
+    scn: Scenario
+    task: TaskConfig
+    task_path: Path
+    env: EnvConfig
+    env_path: Path
+    hyb: HybridConfig
+    hyb_path: Path
+    alg_config: AlgoConfig
+
+
+def load_setup(args: TrainArgs) -> TrainSetup:
+    task, task_path = load_task_config(args["task_conf"])
+    env, env_path = load_env_config(args["env_conf"])
+    hyb, hyb_path = load_hybrid_config(args["hybrid_conf"])
+    if args.get("train_days"):
+        hyb = dataclasses.replace(hyb, train_days=int(args["train_days"]))
+    alg_config = load_algo_config(args["alg"], args["alg_conf"])
+    scn = _scenario(args["net"], args["networks_dir"], args["env_seed"], env, task)
+    return TrainSetup(scn, task, task_path, env, env_path, hyb, hyb_path, alg_config)
+
+
+def _scenario(net: str, networks_dir: str | None, env_seed: int, env: EnvConfig,
+              task: TaskConfig) -> Scenario:
+    """The network's scenario with the task's demand."""
+    scn = load_scenario(net, networks_dir=networks_dir, env_seed=env_seed, route_params=env.route_params())
+    return scale_demand(scn, task.demand_scale, seed=env_seed, mode=task.demand_mode,
+                        jitter_s=task.demand_jitter_s)
+
+
+def make_executor(hyb: HybridConfig, log_dir: Path, kind: str = "pool",
+                  ray_address: str | None = None) -> DayExecutor:
+    """Where a train run's SUMO days run: `ray` actors, or local processes (`pool`; in-process for
+    one worker); SUMO's logs go to `log_dir`."""
+    if kind == "ray":
+        return RayExecutor(max(1, hyb.sumo_workers), log_dir=log_dir, day_timeout_s=hyb.day_timeout_s,
+                           address=ray_address)
+    if hyb.sumo_workers <= 1:
+        return InProcessExecutor(log_file=log_dir / "sumo.log")
+    return SumoPool(hyb.sumo_workers, log_dir=log_dir, day_timeout_s=hyb.day_timeout_s)
+
+
+@contextlib.contextmanager
+def _executor(given: DayExecutor | None, hyb: HybridConfig, log_dir: Path, kind: str,
+              ray_address: str | None) -> Iterator[DayExecutor]:
+    """The caller's executor, or a new one (`make_executor`) closed on exit."""
+    if given is not None:
+        yield given
+        return
+    executor = make_executor(hyb, log_dir, kind, ray_address)
+    try:
+        yield executor
+    finally:
+        executor.close()
+
+
+def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "config1",
+              alg_conf: str = "config1", env_conf: str = "config1", hybrid_conf: str = "default",
+              env_seed: int = 42, seeds: list[int] | None = None, exp_id: str | None = None,
+              mode: str = "hybrid", networks_dir: str | None = None, results_dir: str = "results",
+              overwrite: bool = False, progress: bool = True, train_days: int | None = None,
+              executor: DayExecutor | None = None, stop_after_round: int | None = None,
+              executor_kind: str = "pool", ray_address: str | None = None,
+              human_phase_from: str | None = None) -> list[RunResult]:
+    """Train every seed (sharing the human phase and the SUMO executor; groups of up to
+    `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
+    `human_phase_from`: reuse that earlier train run's human phase instead of simulating it."""
+    seeds = seeds or [0]
+    net = net or DEFAULT_NETWORK
+    args: TrainArgs = {
+        "alg": alg, "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
+        "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode, "networks_dir": networks_dir,
+        "train_days": train_days, "executor": executor_kind, "ray_address": ray_address}
+    t0 = time.perf_counter()
+    setup = load_setup(args)
+    config = _train_config(setup, args, human_phase_from)
+    human = None  # checked before any results folder is created
+    if human_phase_from:
+        human = reuse_human_phase(Path(results_dir) / human_phase_from, config, setup.scn, setup.task,
+                                  setup.hyb, env_seed, calibrate=mode != "sumo")
+    base = exp_id or f"{alg}_{mode}_{Path(net).name}_{setup.task_path.stem}"
+    folders = {s: create_results_dir(results_dir, exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}",
+                                     overwrite) for s in seeds}
+    with _executor(executor, setup.hyb, folders[seeds[0]], executor_kind, ray_address) as ex:
+        if human is None:
+            human = _simulate_human_phase(setup, ex, env_seed, mode, progress)
+        for folder in folders.values():
+            save_human_phase(folder, human)
+        t_human = time.perf_counter() - t0
+        return _train_groups(setup, args, config, seeds, folders, ex, human, t_human, progress,
+                             stop_after_round)
+
+
+def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
+                 executor: DayExecutor | None = None, executor_kind: str | None = None,
+                 ray_address: str | None = None) -> list[RunResult]:
+    """Continue results/<exp_id>/ (and the seeds trained together with it) from the group's newest
+    checkpoint, with the recorded arguments (and the recorded SUMO executor unless `executor_kind`
+    overrides it); one result per seed of the group."""
+    folder = Path(results_dir) / exp_id
+    config = json.loads((folder / CONFIG_FILE).read_text())
+    folders = [Path(results_dir) / name for name in config.get("group", [exp_id])]
+    configs = [json.loads((f / CONFIG_FILE).read_text()) for f in folders]
+    if all(c.get("status") == "done" for c in configs):
+        raise UrbJaxError(f"{folder}: this run is already complete.")
+    args: TrainArgs = configs[0]["train_args"]
+    seeds = [c["train_args"]["seed"] for c in configs]
+    setup = load_setup(args)
+    with _executor(executor, setup.hyb, folders[0], executor_kind or args.get("executor", "pool"),
+                   ray_address or args.get("ray_address")) as ex:
+        t0 = time.perf_counter()
+        result = _train(setup, args, seeds, folders, ex, None, progress, None)
+    wall = time.perf_counter() - t0
+    for c in configs:
+        c["resumed"] = c.get("resumed", 0) + 1
+    walls = [wall + c.get("wall_time_s", 0.0) for c in configs]  # the killed runs' time included
+    return _finish_group(folders, configs, result, setup.task, walls)
+
+
+def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | None) -> dict[str, Any]:
+    """exp_config.json of every seed of a train run, before its seed and group keys."""
+    scn, task, task_path, env, env_path, hyb, hyb_path, _ = setup
+    return {
+        **to_dict(env), **to_dict(task), **{f"hybrid_{k}": v for k, v in to_dict(hyb).items()},
+        "network": scn.name, "net_file": scn.net_file, "env_seed": args["env_seed"],
+        "env_config": env_path.stem, "task_config": task_path.stem, "alg_config": args["alg_conf"],
+        "hybrid_config": hyb_path.stem, "algorithm": args["alg"], "mode": args["mode"],
+        "script": "urb-jax train", "num_agents": scn.n_agents,
+        "num_machines": int(scn.n_agents * task.ratio_machines), "exp_type": "normal",
+        "human_days": task.human_learning_episodes, "versions": versions(), "command": sys.argv,
+        "status": "running", "human_phase_from": human_phase_from,
+    }
+
+
+def _simulate_human_phase(setup: TrainSetup, executor: DayExecutor, env_seed: int, mode: str,
+                          progress: bool) -> HumanPhase:
+    calibrate = mode != "sumo"
+    bar = Progress(setup.task.human_learning_episodes + (setup.hyb.calib_varied_days if calibrate else 0),
+                   progress, desc="human/SUMO")
+    human = run_human_phase(setup.scn, setup.task, setup.hyb, executor, env_seed, bar, calibrate=calibrate)
+    bar.close()
+    return human
+
+
+def _train_groups(setup: TrainSetup, args: TrainArgs, config: dict[str, Any], seeds: list[int],
+                  folders: dict[int, Path], executor: DayExecutor, human: HumanPhase, t_human: float,
+                  progress: bool, stop_after_round: int | None) -> list[RunResult]:
+    """The seeds in groups of up to `max_vmapped_seeds`, one group after another; the first
+    group's wall time includes the human phase."""
+    size = max(1, setup.hyb.max_vmapped_seeds)
+    outs: list[RunResult] = []
+    for gi, first in enumerate(range(0, len(seeds), size)):
+        group = seeds[first:first + size]
+        configs = [{**config, "seed": s, "train_args": args | {"seed": s},
+                    "group": [folders[g].name for g in group], "seeds_together": len(group),
+                    "human_phase_s": round(t_human, 2)} for s in group]
+        for s, c in zip(group, configs, strict=True):
+            write_config(folders[s], c)
+        ts = time.perf_counter()
+        result = _train(setup, args, group, [folders[s] for s in group], executor, human, progress,
+                        stop_after_round)
+        wall = time.perf_counter() - ts + (t_human if gi == 0 else 0.0)
+        outs += _finish_group([folders[s] for s in group], configs, result, setup.task, [wall] * len(group))
+    return outs
+
+
+def _train(setup: TrainSetup, args: TrainArgs, seeds: list[int], folders: list[Path], executor: DayExecutor,
+           human: HumanPhase | None, progress: bool, stop_after_round: int | None
+           ) -> list[TrainSummary] | Stopped:
+    return train_group(scn=setup.scn, task=setup.task, env_cfg=setup.env, alg=args["alg"],
+                       alg_config=setup.alg_config, cfg=setup.hyb, mode=args["mode"], seeds=seeds,
+                       env_seed=args["env_seed"], folders=folders, executor=executor, human=human,
+                       progress=progress, stop_after_round=stop_after_round)
+
+
+def _finish_group(folders: list[Path], configs: list[dict[str, Any]], result: list[TrainSummary] | Stopped,
+                  task: TaskConfig, walls: list[float]) -> list[RunResult]:
+    """Each seed's metric files, plots, rounds.csv and finished exp_config.json; a stopped group
+    (a simulated kill) is left as a crash would leave it, with its wall time."""
+    if isinstance(result, Stopped):
+        outs = []
+        for folder, config, wall in zip(folders, configs, walls, strict=True):
+            config.update(wall_time_s=round(wall, 2))
+            write_config(folder, config)
+            outs.append(RunResult(folder, {}, wall, stopped=result.rounds_done))
+        return outs
+    return [_finish_train(f, c, s, task.human_learning_episodes, w)
+            for f, c, s, w in zip(folders, configs, result, walls, strict=True)]
+
+
+def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H: int,
+                  wall: float) -> RunResult:
+    T = summary.sumo_training_days
+    metrics = write_outputs(folder, H, T)
+    write_rounds(folder, summary.rounds)
+    mark_done(folder, config, wall_time_s=round(wall, 2), training_days=T, sumo_training_days=T,
+              surrogate_training_days=summary.surrogate_days, rounds=summary.n_rounds,
+              alg_config_values=summary.alg_config, aon_same_humans=summary.aon_same_humans)
+    return RunResult(folder, metrics, wall, summary=summary)
+
+
+def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str = "config1",
+                 env_conf: str = "config1", env_seed: int = 42, exp_id: str | None = None,
+                 networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
+                 progress: bool = True, day_fn: DayFn | None = None,
+                 task_overrides: dict[str, Any] | None = None, human_phase_from: str | None = None
+                 ) -> RunResult:
+    """One baseline experiment in results/<exp_id>/ (`human_phase_from`: days 1..H replayed from
+    that run's records instead of simulated)."""
+    net = net or DEFAULT_NETWORK
+    task, task_path = load_task_config(task_conf)
+    if task_overrides:
+        task = dataclasses.replace(task, **task_overrides)
+    env, env_path = load_env_config(env_conf)
+    policy = make_baseline(model)
+    exp_id = exp_id or f"{model}_{Path(net).name}_{task_path.stem}_s{env_seed}"
+    folder = create_results_dir(results_dir, exp_id, overwrite)
+    t0 = time.perf_counter()
+    scn = _scenario(net, networks_dir, env_seed, env, task)
+    config = _baseline_config(scn, task, task_path, env, env_path, env_seed, model, human_phase_from)
+    write_config(folder, config)
+    writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
+    if day_fn is None:  # SUMO's warnings go to the run's sumo.log, not the terminal
+        day_fn = functools.partial(run_day, log_file=folder / "sumo.log")
+    H, T = task.human_learning_episodes, task.training_eps
+    if human_phase_from:
+        day_fn = load_replay(Path(results_dir) / human_phase_from, config, scn.agent_id, H, day_fn)
+    run_experiment(scn, task, env, policy, env_seed=env_seed, day_fn=day_fn, sink=writer, progress=progress)
+    writer.close()
+    metrics = write_outputs(folder, H, T)
+    wall = time.perf_counter() - t0
+    mark_done(folder, config, wall_time_s=round(wall, 2))
+    return RunResult(folder, metrics, wall, days=H + T + task.test_eps,
+                     replayed_days=H if human_phase_from else 0)
+
+
+def _baseline_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvConfig, env_path: Path,
+                     env_seed: int, model: str, human_phase_from: str | None) -> dict[str, Any]:
+    return {
+        **to_dict(env), **to_dict(task),
+        "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed,
+        "env_config": env_path.stem, "task_config": task_path.stem, "alg_config": "baseline",
+        "baseline_model": model, "algorithm": f"baseline_{model}", "script": "urb-jax baseline",
+        "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
+        "exp_type": "normal", "human_days": task.human_learning_episodes, "training_days": task.training_eps,
+        "versions": versions(), "urb_jax_version": __version__, "command": sys.argv,
+        "status": "running", "human_phase_from": human_phase_from,
+    }
