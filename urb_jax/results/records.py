@@ -13,7 +13,6 @@ import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -24,7 +23,6 @@ from urb_jax.core.atomic import atomic_path, write_bytes
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.results.metrics import compute_metrics, vector_metrics
 from urb_jax.sumo_bridge.types import DayResult
-
 
 
 @dataclass(frozen=True)
