@@ -13,8 +13,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor
 
+from urb_jax.algorithms.registry import ALGORITHMS
 from urb_jax.commands.train import run_train
-from urb_jax.experiment.hybrid import ALGORITHMS
 from urb_jax.results.records import read_records
 
 TINY = {

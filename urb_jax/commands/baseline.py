@@ -54,11 +54,11 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
                  human_phase_from: str | None = None) -> dict:
     """Run one baseline experiment and write results/<exp_id>/. Returns metrics and paths."""
     from urb_jax import __version__
+    from urb_jax.algorithms.baselines import make_baseline
     from urb_jax.city.demand import scale_demand
     from urb_jax.city.network import DEFAULT_NETWORK
     from urb_jax.city.scenario import load_scenario
     from urb_jax.core.configio import to_dict
-    from urb_jax.experiment.baselines import make_baseline
     from urb_jax.experiment.protocol import run_experiment
     from urb_jax.game.config import load_env_config, load_task_config
     from urb_jax.results.records import (

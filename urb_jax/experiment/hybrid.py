@@ -39,14 +39,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.algorithms.learner import Day, Learner, act_by_levels, dependency_levels
+from urb_jax.algorithms.learner import Day, Learner
 from urb_jax.algorithms.registry import algorithm
 from urb_jax.city.scenario import Scenario
 from urb_jax.experiment.checkpoints import restore_checkpoint, save_checkpoint
 from urb_jax.experiment.protocol import PHASE_TEST, PHASE_TRAIN, DayRecord, train_humans
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import RoutingEnv
-from urb_jax.game.humans import HumanState
+from urb_jax.game.humans import HumanState, aon_routes
+from urb_jax.game.rollout import act_by_levels, dependency_levels
 
 MODES = ("hybrid", "sumo", "surrogate")
 CKPT_DIR = "checkpoints"
@@ -261,9 +262,8 @@ def train_group(
         from urb_jax.game.humans import init_humans
 
         humans0 = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid), hp)
-    env = RoutingEnv(scn, is_cav, sur_fn, human_init=humans0, travel_params=p0, **common)
-    real_env = RoutingEnv(scn, is_cav, lambda p, c: p, human_init=humans0,
-                          travel_params=jnp.zeros((n,), jnp.float32), **common)
+    env = RoutingEnv(scn, is_cav, sur_fn, human_init=humans0, default_params=p0, **common)
+    real_env = RoutingEnv(scn, is_cav, human_init=humans0, **common)  # SUMO days: step_with_times
     probe, _ = learner_for(alg, alg_config, env, cfg, 1, mode)
     n_rounds, n_iters_round, sur_per_round, sumo_per_round = plan_rounds(cfg, mode, probe.days_per_iter)
     learner, alg_config = learner_for(alg, alg_config, env, cfg, n_rounds, mode, n_iters_round)
@@ -289,14 +289,13 @@ def train_group(
     act_greedy = jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, False)))
 
     def _sumo_step(keys: jax.Array, states: Any, obs: jnp.ndarray, actions: jnp.ndarray, times: jnp.ndarray):
-        states = states._replace(travel_params=times)
-        next_obs, states, rewards, dones, info = jax.vmap(real_env.step)(keys, states, actions)
+        step = jax.vmap(real_env.step_with_times)
+        next_obs, states, rewards, dones, info = step(keys, states, actions, times)
         day = Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"])
         return states, jax.tree_util.tree_map(lambda x: x[None], day)  # [1, P, ...]
 
     sumo_step = jax.jit(jax.vmap(_sumo_step))
     predict_days = jax.jit(jax.vmap(lambda params, choices: predict(params, static, choices)))
-    set_params = jax.jit(jax.vmap(RoutingEnv.with_travel_params))
     split_p = jax.vmap(lambda k: jax.random.split(k, P))
     round_keys = jax.jit(jax.vmap(lambda k, r: jax.random.split(jax.random.fold_in(k, r), 4), (0, None)))
 
@@ -349,7 +348,7 @@ def train_group(
         for writer, parts in zip(writers, meta["record_parts"], strict=True):
             _truncate_parts(writer, parts)
     runner, real, params = state["runner"], state["real"], state["params"]
-    runner = runner._replace(env_states=set_params(runner.env_states, params))
+    runner = runner._replace(env_params=params)
 
     T_sumo = n_rounds * sumo_per_round
     tag = f"[{S} seeds] " if S > 1 else ""
@@ -395,7 +394,7 @@ def train_group(
             sumo_done += P
             if mode == "hybrid":
                 params = _stack(new_params)
-                runner = runner._replace(env_states=set_params(runner.env_states, params))
+                runner = runner._replace(env_params=params)
             dt = time.perf_counter() - t0
             for i, row in enumerate(rows):
                 t = times[i]
@@ -457,8 +456,6 @@ def aon_same_humans(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray, exec
     humans, AON on the first test day's human draw), so each run reports
     it next to its own t_CAV (exp_config.json) at the cost of one SUMO day. Not a run day: it is
     not in the records or in any metric."""
-    from urb_jax.experiment.baselines import aon_routes
-
     mixed = np.where(is_cav, aon_routes(scn.fft, scn.route_valid), choices)
     res = executor.run_days(scn, mixed[None], [env_seed], is_cav=is_cav)[0]
     nan = float("nan")
