@@ -39,14 +39,18 @@ def env_day(env: RoutingEnv, policy: Policy, key: jax.Array, state: EnvState, pa
 
 def collect(env: RoutingEnv, policy: Policy, key: jax.Array, states: EnvState, n_days: int,
             params: EnvParams = None) -> tuple[EnvState, Day]:
-    """n_days days in each of B envs (states batched [B]), all under the same env `params`;
-    returns Day arrays [n_days, B, ...]."""
+    """n_days days in each of B envs (states batched [B]), all under the same env `params`
+    (env.default_params when None); returns Day arrays [n_days, B, ...]."""
     n_envs = jax.tree_util.tree_leaves(states)[0].shape[0]
     levels = dependency_levels(env)
+    # One copy of the params per env ([B, ...], vmapped like the states): with the params unbatched
+    # XLA fuses the surrogate differently and its times move by ~1e-6 min.
+    params = env.default_params if params is None else params
+    params_b = jax.tree_util.tree_map(lambda p: jnp.broadcast_to(p, (n_envs, *jnp.shape(p))), params)
 
     def body(states: EnvState, k: jax.Array) -> tuple[EnvState, Day]:
         keys = jax.random.split(k, n_envs)
-        return jax.vmap(lambda kk, s: env_day(env, policy, kk, s, params, levels))(keys, states)
+        return jax.vmap(lambda kk, s, p: env_day(env, policy, kk, s, p, levels))(keys, states, params_b)
 
     return jax.lax.scan(body, states, jax.random.split(key, n_days))
 
