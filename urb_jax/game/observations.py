@@ -56,15 +56,9 @@ def prefix_index(group: np.ndarray, depart: np.ndarray) -> PrefixIndex:
     return PrefixIndex(order, inverse, group_start, tie_start)
 
 
-def earlier_counts(index: PrefixIndex, actions: jnp.ndarray, k: int,
-                   include: jnp.ndarray | None = None) -> jnp.ndarray:
-    """[N, K]: per agent, how many agents of its group departed strictly earlier with action k.
-
-    `include` [N] bool restricts which agents are counted (e.g. only those that already chose).
-    """
+def earlier_counts(index: PrefixIndex, actions: jnp.ndarray, k: int) -> jnp.ndarray:
+    """[N, K]: per agent, how many agents of its group departed strictly earlier with action k."""
     onehot = jax.nn.one_hot(actions, k, dtype=jnp.float32)
-    if include is not None:
-        onehot = onehot * include[:, None]
     sorted_onehot = onehot[index.order]
     before = jnp.concatenate([jnp.zeros((1, k)), jnp.cumsum(sorted_onehot, axis=0)[:-1]], axis=0)
     counts_sorted = before[index.tie_start] - before[index.group_start]
