@@ -30,13 +30,14 @@ from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset
 from urb_jax.algorithms.networks import MLP, hidden_layers, make_agent_net, obs_scale, take_agents
 from urb_jax.algorithms.policy import entropy, masked
 from urb_jax.algorithms.updates import adam_step, days_shape, flatten_days, gae, minibatch_days
-from urb_jax.game.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 
 
 class RunnerState(NamedTuple):
     params: Any  # {"actor": ..., "critic": ...}
     opt_state: Any
     env_states: EnvState
+    env_params: EnvParams  # travel-time parameters the envs simulate with
 
 
 class Batch(NamedTuple):
@@ -123,7 +124,7 @@ def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) 
     def init(key: jax.Array) -> RunnerState:
         k_actor, k_critic, k_env, _ = jax.random.split(key, 4)
         params = {"actor": actor.init(k_actor), "critic": critic_init(k_critic)}
-        return RunnerState(params, tx.init(params), reset_envs(env, k_env, n_envs))
+        return RunnerState(params, tx.init(params), reset_envs(env, k_env, n_envs), env.default_params)
 
     def policy(runner: RunnerState, explore: bool = True):
         return policy_for(runner.params, sample=explore)
@@ -163,11 +164,12 @@ def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) 
         (params, opt_state), aux = jax.lax.scan(
             epoch, (params, runner.opt_state), jax.random.split(key, config.num_epochs))
         metrics = day_metrics(days) | jax.tree_util.tree_map(jnp.mean, aux)
-        return RunnerState(params, opt_state, runner.env_states), metrics
+        return runner._replace(params=params, opt_state=opt_state), metrics
 
     def iteration(runner: RunnerState, key: jax.Array):
         k_col, k_upd = jax.random.split(key)
-        env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days)
+        env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days,
+                                   runner.env_params)
         return update_from_days(runner._replace(env_states=env_states), days, k_upd)
 
     return Learner(init, iteration, update_from_days, policy, config.n_iters, n_days)

@@ -26,13 +26,14 @@ from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset
 from urb_jax.algorithms.networks import make_per_cav_mlp, take_agents
 from urb_jax.algorithms.policy import entropy, masked
 from urb_jax.algorithms.updates import adam_step, days_shape
-from urb_jax.game.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 
 
 class RunnerState(NamedTuple):
     params: Any  # leaves [C, ...]
     opt_state: Any
     env_states: EnvState
+    env_params: EnvParams  # travel-time parameters the envs simulate with
 
 
 def bandit_ppo_loss(logits: jnp.ndarray, action: jnp.ndarray, old_log_prob: jnp.ndarray, reward: jnp.ndarray,
@@ -52,7 +53,7 @@ def days_per_update(config: IPPOStarConfig) -> int:
 
 
 def make_network(config: IPPOStarConfig, env: RoutingEnv):
-    """(init, apply, mlp, scale): one network per CAV (algorithms.common.make_per_cav_mlp)."""
+    """(init, apply, mlp, scale): one network per CAV (networks.make_per_cav_mlp)."""
     return make_per_cav_mlp(env, config.widths, config.normalize_obs)
 
 
@@ -105,7 +106,8 @@ def make_learner(config: IPPOStarConfig, env: RoutingEnv) -> Learner:
     def init(key: jax.Array) -> RunnerState:
         k_init, k_env, _ = jax.random.split(key, 3)
         params = init_params(k_init)
-        return RunnerState(params, jax.vmap(tx.init)(params), reset_envs(env, k_env, config.num_envs))
+        return RunnerState(params, jax.vmap(tx.init)(params), reset_envs(env, k_env, config.num_envs),
+                           env.default_params)
 
     def policy(runner: RunnerState, explore: bool = True):
         return policy_for(runner.params, sample=explore)
@@ -123,11 +125,12 @@ def make_learner(config: IPPOStarConfig, env: RoutingEnv) -> Learner:
             runner.params, runner.opt_state, per_cav(days.obs), per_cav(days.action), per_cav(logp),
             per_cav(days.reward), mask, jax.random.split(key, env.n_cavs))
         metrics = day_metrics(days) | {"loss": loss.mean()}
-        return RunnerState(params, opt_state, runner.env_states), metrics
+        return runner._replace(params=params, opt_state=opt_state), metrics
 
     def iteration(runner: RunnerState, key: jax.Array):
         k_col, k_upd = jax.random.split(key)
-        env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days)
+        env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days,
+                                   runner.env_params)
         return update_from_days(runner._replace(env_states=env_states), days, k_upd)
 
     return Learner(init, iteration, update_from_days, policy, n_iters, n_days)

@@ -7,7 +7,7 @@ training days), append the days to a ring replay buffer, then `num_epochs` epoch
 y = r + gamma * (1 - done) * max_a' Q_target(s', a') with the CAV's own reward; the target is
 mixed `target <- eps * target + (1 - eps) * online` once per epoch (URB key `eps`, `tau` unused).
 URB's episodes are one day (done every day), so y = r: a contextual bandit per day.
-`num_minibatches > 0` replaces URB's step count by a fixed one (common.update_plan).
+`num_minibatches > 0` replaces URB's step count by a fixed one (updates.update_plan).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset
 from urb_jax.algorithms.networks import hidden_layers, make_agent_net
 from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
 from urb_jax.algorithms.updates import adam_step, days_shape, flatten_days, polyak, select_tree, update_plan
-from urb_jax.game.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 
 
 class RunnerState(NamedTuple):
@@ -33,6 +33,7 @@ class RunnerState(NamedTuple):
     opt_state: Any
     buffer: Buffer
     env_states: EnvState
+    env_params: EnvParams  # travel-time parameters the envs simulate with
     day: jnp.ndarray  # training days so far (per env)
 
 
@@ -81,7 +82,7 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
         example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
                       jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
         return RunnerState(params, params, tx.init(params), buffer_init(example, capacity), env_states,
-                           jnp.zeros((), jnp.int32))
+                           env.default_params, jnp.zeros((), jnp.int32))
 
     def policy(runner: RunnerState, explore: bool = True):
         return policy_for(runner.params, eps_at(runner.day) if explore else 0.0)
@@ -110,12 +111,14 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
         params, target, opt_state = select_tree(
             ready, (params, target, opt_state), (runner.params, runner.target, runner.opt_state))
         metrics = day_metrics(days) | {"loss": losses.mean()}
-        return RunnerState(params, target, opt_state, buffer, runner.env_states, runner.day + t), metrics
+        return runner._replace(params=params, target=target, opt_state=opt_state, buffer=buffer,
+                               day=runner.day + t), metrics
 
     def iteration(runner: RunnerState, key: jax.Array):
         k_col, k_upd = jax.random.split(key)
         eps = eps_at(runner.day)
-        env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days)
+        env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days,
+                                   runner.env_params)
         runner, metrics = update_from_days(runner._replace(env_states=env_states), days, k_upd)
         return runner, metrics | {"eps": eps}
 

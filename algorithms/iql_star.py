@@ -24,7 +24,7 @@ from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset
 from urb_jax.algorithms.networks import make_per_cav_mlp
 from urb_jax.algorithms.policy import eps_greedy_policy
 from urb_jax.algorithms.updates import adam_step, flatten_days, select_tree
-from urb_jax.game.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 
 
 class Sample(NamedTuple):
@@ -38,6 +38,7 @@ class RunnerState(NamedTuple):
     opt_state: Any  # leaves [C, ...]
     buffer: Buffer  # entries [capacity] of Sample (every CAV adds one per env-day)
     env_states: EnvState
+    env_params: EnvParams  # travel-time parameters the envs simulate with
     eps: jnp.ndarray
 
 
@@ -48,7 +49,7 @@ def bandit_loss(q: jnp.ndarray, action: jnp.ndarray, reward: jnp.ndarray) -> jnp
 
 
 def make_network(config: IQLStarConfig, env: RoutingEnv):
-    """(init, apply, mlp, scale): one network per CAV (algorithms.common.make_per_cav_mlp)."""
+    """(init, apply, mlp, scale): one network per CAV (networks.make_per_cav_mlp)."""
     return make_per_cav_mlp(env, config.widths, config.normalize_obs)
 
 
@@ -91,7 +92,8 @@ def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:
         c, d = n_cav, env.obs_size
         example = Sample(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)))
         return RunnerState(params, jax.vmap(tx.init)(params), buffer_init(example, capacity),
-                           reset_envs(env, k_env, n_envs), jnp.asarray(config.eps_init, jnp.float32))
+                           reset_envs(env, k_env, n_envs), env.default_params,
+                           jnp.asarray(config.eps_init, jnp.float32))
 
     def policy(runner: RunnerState, explore: bool = True):
         return policy_for(runner.params, runner.eps if explore else 0.0)
@@ -106,12 +108,12 @@ def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:
         params, opt_state = select_tree(ready, (params, opt_state), (runner.params, runner.opt_state))
         eps = jnp.where(ready, jnp.maximum(config.eps_min, runner.eps * config.eps_decay), runner.eps)
         metrics = day_metrics(days) | {"loss": loss.mean(), "eps": runner.eps}
-        return RunnerState(params, opt_state, buffer, runner.env_states, eps), metrics
+        return runner._replace(params=params, opt_state=opt_state, buffer=buffer, eps=eps), metrics
 
     def iteration(runner: RunnerState, key: jax.Array):
         k_col, k_upd = jax.random.split(key)
         env_states, days = collect(env, policy_for(runner.params, runner.eps), k_col, runner.env_states,
-                                   n_days)
+                                   n_days, runner.env_params)
         return update_from_days(runner._replace(env_states=env_states), days, k_upd)
 
     return Learner(init, iteration, update_from_days, policy, n_iters, n_days)

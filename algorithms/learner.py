@@ -1,5 +1,6 @@
-"""The `Learner` seam the trainers drive, and day collection: CAVs act in departure order,
-the env simulates, `collect` scans days over vmapped environments."""
+"""The `Learner` seam the trainers drive, and day collection: CAVs act in departure order
+(`urb_jax.game.rollout`), the env simulates under the runner's env params, `collect` scans days
+over vmapped environments."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.algorithms.policy import Policy
-from urb_jax.game.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
+from urb_jax.game.rollout import Policy, act_by_levels, dependency_levels
 
 
 class Day(NamedTuple):
@@ -26,51 +27,30 @@ class Day(NamedTuple):
     time_human: jnp.ndarray  # []
 
 
-def dependency_levels(env: RoutingEnv) -> tuple[np.ndarray, ...]:
-    """CAV-axis indices by level: a CAV's level is the number of distinct earlier departure times
-    among CAVs of its observation group, so its observation depends only on lower levels."""
-    scn = env.scenario
-    group = scn.agent_od if env.obs_spec.kind != "global_previous_agents" else np.zeros(scn.n_agents, int)
-    g, t = group[env.cav_index], scn.agent_depart[env.cav_index]
-    level = np.zeros(env.n_cavs, dtype=np.int64)
-    for grp in np.unique(g):
-        members = np.flatnonzero(g == grp)
-        level[members] = np.searchsorted(np.unique(t[members]), t[members])
-    return tuple(np.flatnonzero(level == lv) for lv in range(int(level.max(initial=-1)) + 1))
-
-
-def act_by_levels(env: RoutingEnv, key: jax.Array, state: EnvState, policy: Policy,
-                  levels: tuple[np.ndarray, ...] | None = None) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """Exact departure-order choices like env.act_in_order, but each CAV's network runs once:
-    level by level (static index sets, unrolled), observing the lower levels' choices. Costs C
-    policy evaluations per day instead of depth x C."""
-    levels = dependency_levels(env) if levels is None else levels
-    actions = state.cav_actions
-    for lv, idx in enumerate(levels):
-        obs = env.observe(state, actions)
-        chosen = policy(jax.random.fold_in(key, lv), obs[idx], jnp.asarray(idx))
-        actions = actions.at[idx].set(chosen.astype(jnp.int32))
-    return env.observe(state, actions), actions
-
-
-def env_day(env: RoutingEnv, policy: Policy, key: jax.Array, state: EnvState,
+def env_day(env: RoutingEnv, policy: Policy, key: jax.Array, state: EnvState, params: EnvParams = None,
             levels: tuple[np.ndarray, ...] | None = None) -> tuple[EnvState, Day]:
-    """One day of one env: CAVs act in departure order (act_by_levels), then simulate."""
+    """One day of one env: CAVs act in departure order (act_by_levels), then simulate under
+    `params` (the env's default_params when None)."""
     k_act, k_step = jax.random.split(key)
     obs, actions = act_by_levels(env, k_act, state, policy, levels)
-    next_obs, state, rewards, dones, info = env.step(k_step, state, actions)
+    next_obs, state, rewards, dones, info = env.step(k_step, state, actions, params)
     return state, Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"])
 
 
-def collect(env: RoutingEnv, policy: Policy, key: jax.Array, states: EnvState, n_days: int
-            ) -> tuple[EnvState, Day]:
-    """n_days days in each of B envs (states batched [B]); returns Day arrays [n_days, B, ...]."""
+def collect(env: RoutingEnv, policy: Policy, key: jax.Array, states: EnvState, n_days: int,
+            params: EnvParams = None) -> tuple[EnvState, Day]:
+    """n_days days in each of B envs (states batched [B]), all under the same env `params`
+    (env.default_params when None); returns Day arrays [n_days, B, ...]."""
     n_envs = jax.tree_util.tree_leaves(states)[0].shape[0]
     levels = dependency_levels(env)
+    # One copy of the params per env ([B, ...], vmapped like the states): with the params unbatched
+    # XLA fuses the surrogate differently and its times move by ~1e-6 min.
+    params = env.default_params if params is None else params
+    params_b = jax.tree_util.tree_map(lambda p: jnp.broadcast_to(p, (n_envs, *jnp.shape(p))), params)
 
     def body(states: EnvState, k: jax.Array) -> tuple[EnvState, Day]:
         keys = jax.random.split(k, n_envs)
-        return jax.vmap(lambda kk, s: env_day(env, policy, kk, s, levels))(keys, states)
+        return jax.vmap(lambda kk, s, p: env_day(env, policy, kk, s, p, levels))(keys, states, params_b)
 
     return jax.lax.scan(body, states, jax.random.split(key, n_days))
 
@@ -79,11 +59,12 @@ class Learner(NamedTuple):
     """An algorithm as pieces the trainers drive (`make_train` scans `iteration`; the hybrid trainer
     mixes surrogate iterations with updates on SUMO days).
 
-    init(key) -> runner; iteration(runner, key) -> (runner, metrics): collect on the runner's envs,
-    then update; update_from_days(runner, days[T, B, ...], key) -> (runner, metrics): one update on
-    given days (e.g. SUMO days), env states untouched; policy(runner, explore) -> Policy (explore
-    False: the frozen test policy); n_iters: iterations `make_train` runs; days_per_iter: days
-    collected per env per iteration."""
+    init(key) -> runner, its env params starting at env.default_params (a trainer may swap them,
+    e.g. after a surrogate refit: runner._replace(env_params=...)); iteration(runner, key) ->
+    (runner, metrics): collect on the runner's envs, then update; update_from_days(runner,
+    days[T, B, ...], key) -> (runner, metrics): one update on given days (e.g. SUMO days), env
+    states untouched; policy(runner, explore) -> Policy (explore False: the frozen test policy);
+    n_iters: iterations `make_train` runs; days_per_iter: days collected per env per iteration."""
 
     init: Callable[[jax.Array], Any]
     iteration: Callable[[Any, jax.Array], tuple[Any, dict[str, jnp.ndarray]]]
@@ -119,10 +100,10 @@ def day_metrics(days: Day) -> dict[str, jnp.ndarray]:
 
 
 def evaluate(env: RoutingEnv, policy: Policy, key: jax.Array, n_days: int, n_envs: int = 1,
-             states: EnvState | None = None) -> dict[str, jnp.ndarray]:
+             states: EnvState | None = None, params: EnvParams = None) -> dict[str, jnp.ndarray]:
     """Mean CAV / human travel time (minutes) and reward of a fixed policy over n_days x n_envs."""
     k_reset, k_run = jax.random.split(key)
     if states is None:
         states = reset_envs(env, k_reset, n_envs)
-    _, days = collect(env, policy, k_run, states, n_days)
+    _, days = collect(env, policy, k_run, states, n_days, params)
     return day_metrics(days)

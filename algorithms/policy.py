@@ -1,5 +1,5 @@
-"""Acting: invalid-route masking, epsilon-greedy over valid routes, exploration schedules, and
-the `Policy` signature every learner and baseline exposes."""
+"""Acting: invalid-route masking, epsilon-greedy over valid routes, exploration schedules. Every
+learner and baseline exposes the game's `Policy` signature (`urb_jax.game.rollout`)."""
 
 from __future__ import annotations
 
@@ -10,13 +10,9 @@ import jax
 import jax.numpy as jnp
 
 from urb_jax.algorithms.networks import take_agents
+from urb_jax.game.rollout import Policy
 
 NEG = -1e9
-
-
-# policy(key, obs[n, D], idx[n] | None) -> actions[n]: idx names the CAVs (None = all C, the
-# signature env.act_in_order and SUMO days use).
-Policy = Callable[..., jnp.ndarray]
 
 
 def masked(logits: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:

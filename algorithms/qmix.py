@@ -28,7 +28,7 @@ from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset
 from urb_jax.algorithms.networks import hidden_layers, make_agent_net, obs_scale
 from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
 from urb_jax.algorithms.updates import adam_step, days_shape, flatten_days, polyak, select_tree, update_plan
-from urb_jax.game.env import EnvState, RoutingEnv
+from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 
 
 class QMixer(nn.Module):
@@ -69,6 +69,7 @@ class RunnerState(NamedTuple):
     opt_state: Any
     buffer: Buffer
     env_states: EnvState
+    env_params: EnvParams  # travel-time parameters the envs simulate with
     day: jnp.ndarray
 
 
@@ -137,7 +138,7 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
         example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
                       jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
         return RunnerState(params, params, tx.init(params), buffer_init(example, capacity),
-                           reset_envs(env, k_env, n_envs), jnp.zeros((), jnp.int32))
+                           reset_envs(env, k_env, n_envs), env.default_params, jnp.zeros((), jnp.int32))
 
     def policy(runner: RunnerState, explore: bool = True):
         return policy_for(runner.params, eps_at(runner.day) if explore else 0.0)
@@ -159,12 +160,14 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
         new, losses = jax.lax.scan(sgd_step, old, jax.random.split(key, n_steps))
         params, target, opt_state = select_tree(buffer.size >= mb_days, new, old)
         metrics = day_metrics(days) | {"loss": losses.mean()}
-        return RunnerState(params, target, opt_state, buffer, runner.env_states, runner.day + t), metrics
+        return runner._replace(params=params, target=target, opt_state=opt_state, buffer=buffer,
+                               day=runner.day + t), metrics
 
     def iteration(runner: RunnerState, key: jax.Array):
         k_col, k_upd = jax.random.split(key)
         eps = eps_at(runner.day)
-        env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days)
+        env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days,
+                                   runner.env_params)
         runner, metrics = update_from_days(runner._replace(env_states=env_states), days, k_upd)
         return runner, metrics | {"eps": eps}
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from urb_jax.experiment.baselines import aon_routes
+from urb_jax.game.humans import aon_routes
 from urb_jax.results.day_export import (
     cli_travel_times,
     day_routes_xml,

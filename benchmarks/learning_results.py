@@ -29,7 +29,7 @@ from real_surrogate import surrogate_travel_fn
 from standin import bpr_travel_time_fn
 
 from urb_jax.algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
-from urb_jax.algorithms.baselines import aon_policy, random_policy
+from urb_jax.algorithms.baselines import baseline_policy
 from urb_jax.algorithms.ippo_star import days_per_update
 from urb_jax.algorithms.learner import evaluate
 from urb_jax.algorithms.registry import load_algo_config
@@ -130,8 +130,8 @@ def main() -> None:
         envs = {b: RoutingEnv(scn, is_cav, tt, reward_coefficients=behaviour_coefficients(b),
                               human_init=humans) for b in ("selfish", "cooperative")}
         base = {}
-        for name, make in (("random", random_policy), ("aon", aon_policy)):
-            m = evaluate(envs["selfish"], make(envs["selfish"]), key, args.test_days)
+        for name in ("random", "aon"):
+            m = evaluate(envs["selfish"], baseline_policy(name, envs["selfish"]), key, args.test_days)
             base[name] = float(m["time_cav"])
             rows.append({"network": net, "algorithm": name, "config": "", "time_cav": base[name],
                          "time_human": float(m["time_human"]), "train_s": 0.0, "days": 0})

@@ -35,6 +35,7 @@ from urb_jax.city.scenario import load_scenario
 from urb_jax.game.env import RoutingEnv
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.game.rewards import behaviour_coefficients
+from urb_jax.game.rollout import dependency_levels
 
 MODULES = {"iql": iql, "ippo": ippo, "mappo": mappo, "qmix": qmix, "vdn": vdn, "iql_star": iql_star,
            "ippo_star": ippo_star}
@@ -123,7 +124,8 @@ def main() -> None:
                         print(f"{net:18s} {alg:10s} {conf:8s} {n_envs:3d}  skipped", flush=True)
                         continue
                     r = measure(alg, env, n_envs, conf, args.min_days, args.net)
-                    print(f"{net:18s} {alg:10s} {conf:8s} {n_envs:3d} {env.n_cavs:5d} {env.depth:5d} "
+                    depth = len(dependency_levels(env))
+                    print(f"{net:18s} {alg:10s} {conf:8s} {n_envs:3d} {env.n_cavs:5d} {depth:5d} "
                           f"{r['compile_s']:9.1f} {r['days']:6d} {r['run_s']:7.2f} {r['days_per_s']:8.1f}",
                           flush=True)
     print(f"load average at the end {os.getloadavg()[0]:.1f}")

@@ -1,4 +1,5 @@
-"""Travel-time parameters ride in the env state, so a refit needs no recompilation."""
+"""Travel-time parameters are explicit step arguments (gymnax style), so a refit needs no
+recompilation; measured times (SUMO) go through the same day transition."""
 
 import jax
 import jax.numpy as jnp
@@ -8,26 +9,40 @@ from urb_jax.game.env import RoutingEnv
 from urb_jax.game.mutation import draw_cavs
 
 
-def test_params_from_state_change_times_without_retracing(grid_scenario):
-    scn = grid_scenario
+def scaled_env(scn, traces):
     fft = jnp.asarray(scn.fft_full)
-    traces = []
 
     def tt(params, choices):
         traces.append(1)
         return fft[jnp.arange(scn.n_agents), choices] * params["scale"]
 
-    env = RoutingEnv(scn, draw_cavs(0, scn.n_agents, 0.4), tt, travel_params={"scale": jnp.asarray(1.0)})
+    return RoutingEnv(scn, draw_cavs(0, scn.n_agents, 0.4), tt, default_params={"scale": jnp.asarray(1.0)})
+
+
+def test_params_change_times_without_retracing(grid_scenario):
+    traces = []
+    env = scaled_env(grid_scenario, traces)
     _, state = env.reset(jax.random.PRNGKey(0))
     step = jax.jit(env.step)
     actions = jnp.zeros((env.n_cavs,), jnp.int32)
-    _, _, r1, _, info1 = step(jax.random.PRNGKey(1), state, actions)
-    state2 = RoutingEnv.with_travel_params(state, {"scale": jnp.asarray(2.0)})
-    _, _, r2, _, info2 = step(jax.random.PRNGKey(1), state2, actions)
+    _, _, r1, _, info1 = step(jax.random.PRNGKey(1), state, actions, env.default_params)
+    _, _, r2, _, info2 = step(jax.random.PRNGKey(1), state, actions, {"scale": jnp.asarray(2.0)})
     assert np.allclose(np.asarray(info2["times"]), 2 * np.asarray(info1["times"]))
     assert np.allclose(np.asarray(r2), 2 * np.asarray(r1))  # selfish: reward = -own time
     assert len(traces) == 1
+    _, _, _, _, info0 = env.step(jax.random.PRNGKey(1), state, actions)  # None: default_params
+    np.testing.assert_array_equal(info0["times"], info1["times"])
 
-    batched = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 3))[1]
-    swapped = RoutingEnv.with_travel_params(batched, {"scale": jnp.asarray(3.0)})
-    assert swapped.travel_params["scale"].shape == (3,)
+
+def test_step_with_times_is_the_same_transition(grid_scenario):
+    env = scaled_env(grid_scenario, [])
+    _, state = env.reset(jax.random.PRNGKey(0))
+    actions = jnp.ones((env.n_cavs,), jnp.int32)
+    key = jax.random.PRNGKey(3)
+    simulated = env.step(key, state, actions, {"scale": jnp.asarray(1.5)})
+    measured = env.step_with_times(key, state, actions, simulated[4]["times"])
+    for a, b in zip(jax.tree_util.tree_leaves(simulated), jax.tree_util.tree_leaves(measured), strict=True):
+        np.testing.assert_array_equal(a, b)
+    sumo_only = RoutingEnv(grid_scenario, env.is_cav)  # no travel_time_fn: its days come from outside
+    replay = sumo_only.step_with_times(key, state, actions, simulated[4]["times"])
+    np.testing.assert_array_equal(replay[1].human_actions, simulated[1].human_actions)

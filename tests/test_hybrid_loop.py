@@ -103,7 +103,7 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
         np.mean([d.duration[is_cav] for d in test_days]) / 60, rel=1e-5)
     assert out.metrics["t_CAV_duration"] < out.metrics["t_CAV"]
     # the AON reference: the first test day's humans, every CAV on its minimum free-flow route
-    from urb_jax.experiment.baselines import aon_routes
+    from urb_jax.game.humans import aon_routes
 
     np.testing.assert_array_equal(aon_day, np.where(is_cav, aon_routes(scn.fft, scn.route_valid), rest[T]))
     aon_t = FakeDay()(scn, aon_day, seed=42).travel_time

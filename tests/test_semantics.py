@@ -7,7 +7,7 @@ import pytest
 
 from urb_jax.core.errors import ConfigError
 from urb_jax.game.humans import HumanParams, HumanState, act, init_humans, learn
-from urb_jax.game.observations import dependency_depth, make_observation_spec, observe
+from urb_jax.game.observations import make_observation_spec, observe
 from urb_jax.game.rewards import BEHAVIOURS, behaviour_coefficients, cav_rewards
 
 KEY = jax.random.PRNGKey(0)
@@ -139,13 +139,6 @@ def test_previous_agents_and_global_variant():
     assert glob[1].tolist() == [20, 0, 0, 1, 0]
     with pytest.raises(ConfigError):
         make_observation_spec("trip_info_eta", OD, DEPART, 4)
-
-
-def test_dependency_depth_counts_same_od_cav_chain():
-    is_cav = np.array([True, True, False, True, True, False])
-    # od 0 CAVs depart at 10, 20, 20, 30 -> three distinct seconds
-    assert dependency_depth(OD, DEPART, is_cav, "previous_agents") == 3
-    assert dependency_depth(OD, DEPART, is_cav, "global_previous_agents") == 3
 
 
 def test_observe_is_jittable():

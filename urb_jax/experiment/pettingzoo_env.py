@@ -21,19 +21,20 @@ from pettingzoo import AECEnv
 from pettingzoo.utils import AgentSelector
 
 from urb_jax.city.scenario import Scenario
-from urb_jax.experiment.protocol import _act, _learn, _sumo_day_fn, train_humans
+from urb_jax.experiment.protocol import DayFn, train_humans
 from urb_jax.game.config import EnvConfig, TaskConfig
-from urb_jax.game.humans import HumanState
+from urb_jax.game.humans import HumanState, act_jit, end_day_jit
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.game.observations import make_observation_spec, observe
 from urb_jax.game.rewards import cav_rewards
+from urb_jax.sumo_bridge import run_day
 
 
 class UrbAECEnv(AECEnv):
     metadata: ClassVar[dict] = {"name": "urb_jax_v0", "render_modes": [], "is_parallelizable": False}
 
     def __init__(self, scenario: Scenario, task: TaskConfig | None = None,
-                 env_config: EnvConfig | None = None, *, env_seed: int = 42, day_fn: Any = None,
+                 env_config: EnvConfig | None = None, *, env_seed: int = 42, day_fn: DayFn | None = None,
                  humans: HumanState | None = None,
                  is_cav: np.ndarray | None = None) -> None:
         super().__init__()
@@ -41,13 +42,13 @@ class UrbAECEnv(AECEnv):
         self.task = task or TaskConfig()
         self.env_config = env_config or EnvConfig()
         self.env_seed = env_seed
-        self.day_fn = day_fn or _sumo_day_fn()
+        self.day_fn = day_fn or run_day
         self.hp = self.task.human_params()
         self.coefficients = self.task.reward_coefficients
         n = scenario.n_agents
         self.fft = jnp.asarray(scenario.fft, dtype=jnp.float32)
         if humans is None:
-            def simulate(day, phase, choices, mask):
+            def simulate(day: int, phase: str, choices: np.ndarray, mask: np.ndarray) -> Any:
                 return self.day_fn(scenario, choices, seed=env_seed, is_cav=mask)
 
             humans = train_humans(scenario, self.hp, self.task.human_learning_episodes, env_seed=env_seed,
@@ -78,8 +79,8 @@ class UrbAECEnv(AECEnv):
             self._key = jax.random.PRNGKey(seed)
         self.day += 1
         self._day_key = jax.random.fold_in(self._key, self.day)
-        self.human_choices = np.asarray(_act(jax.random.fold_in(self._day_key, 1), self.humans, self.hp,
-                                             self.fft))
+        self.human_choices = np.asarray(act_jit(jax.random.fold_in(self._day_key, 1), self.humans, self.hp,
+                                                self.fft))
         self.joint = self.human_choices.copy()
         self.agents = list(self.possible_agents)
         self.rewards = dict.fromkeys(self.agents, 0.0)
@@ -121,11 +122,10 @@ class UrbAECEnv(AECEnv):
             self.rewards[a] = float(rewards[i])
             self.terminations[a] = True
             self.infos[a] = {"travel_time": float(times[i]), "day": self.day}
-        if self.task.should_humans_adapt:
-            self.humans = _learn(jax.random.fold_in(self._day_key, 2), self.humans, jnp.asarray(self.joint),
-                                 jnp.asarray(times), self.hp, jnp.asarray(~self.is_cav))
-        else:
-            self.humans = self.humans._replace(last_action=jnp.asarray(self.joint, jnp.int32))
+        # As the SUMO protocol: humans learn only when the task lets them adapt.
+        self.humans = end_day_jit(jax.random.fold_in(self._day_key, 2), self.humans, jnp.asarray(self.joint),
+                                  jnp.asarray(times), self.hp, self.is_cav,
+                                  learn_today=self.task.should_humans_adapt)
 
     def render(self) -> None:
         return None

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from urb_jax import __version__
+from urb_jax.algorithms.baselines import make_baseline
 from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.demand import scale_demand
 from urb_jax.city.network import DEFAULT_NETWORK
@@ -28,7 +29,6 @@ from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.configio import to_dict
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.progress import Progress
-from urb_jax.experiment.baselines import make_baseline
 from urb_jax.experiment.human_phase import (
     HumanPhase,
     load_replay,

@@ -1,16 +1,16 @@
 """The routing game as a functional JAX environment (gymnax / JaxMARL style).
 
 One step = one day. CAVs (a fixed set after mutation) pick routes; humans pick by their learned
-model (`urb_jax.humans`); travel times come from a jittable `travel_time_fn(choices[N]) -> [N]`
-(the surrogate, or anything else); CAV rewards follow the task's behaviour (`urb_jax.rewards`).
-When `travel_params` is given, the function is called as `travel_time_fn(params, choices)` with
-the params read from the state: a refitted surrogate then swaps in with `with_travel_params`
-without recompiling anything.
+model (`urb_jax.game.humans`); travel times come from a jittable `travel_time_fn` (the surrogate,
+or anything else) or are measured outside (SUMO: `step_with_times`); CAV rewards follow the task's
+behaviour (`urb_jax.game.rewards`). Parameters of `travel_time_fn` are explicit, gymnax-style:
+`step(key, state, actions, params)`, so a refitted surrogate swaps in without recompiling; an
+env with `default_params` calls `travel_time_fn(params, choices)`, one without `travel_time_fn(choices)`.
 
 Departure order (AEC semantics): a CAV observes the choices of agents that departed earlier
 today. Humans' choices for a day are drawn when the previous day ends (stored in the state), so
-`observe(state, cav_actions)` is a pure function; `act_in_order` iterates obs -> act `depth`
-times, which reproduces the sequential order exactly (see `urb_jax.observations`).
+`observe(state, cav_actions)` is a pure function; `urb_jax.game.rollout` makes the CAVs choose in
+departure order on it.
 
 Arrays over CAVs use the CAV axis [C] (CAVs in departure order); arrays over all agents use the
 Scenario's agent axis [N].
@@ -27,12 +27,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
-from urb_jax.game.humans import HumanParams, HumanState, act, init_humans, learn
-from urb_jax.game.observations import ObservationSpec, dependency_depth, make_observation_spec, observe
+from urb_jax.game.humans import HumanParams, HumanState, act, aon_routes, end_day, init_humans
+from urb_jax.game.observations import ObservationSpec, make_observation_spec, observe
 from urb_jax.game.rewards import cav_rewards
 
-TravelTimeFn = Callable[[jnp.ndarray], jnp.ndarray]
-PolicyFn = Callable[[jax.Array, jnp.ndarray], jnp.ndarray]  # (key, obs[C, D]) -> actions[C]
+# Parameters of travel_time_fn (a pytree, e.g. the surrogate's); None for a parameter-free model.
+EnvParams = Any
+# travel_time_fn(choices[N]) -> minutes [N], or travel_time_fn(params, choices[N]) with default_params.
+TravelTimeFn = Callable[..., jnp.ndarray]
+StepResult = tuple[jnp.ndarray, "EnvState", jnp.ndarray, jnp.ndarray, dict[str, jnp.ndarray]]
 
 
 class EnvState(NamedTuple):
@@ -41,20 +44,19 @@ class EnvState(NamedTuple):
     cav_actions: jnp.ndarray  # [C] yesterday's CAV choices (observation fallback)
     times: jnp.ndarray  # [N] yesterday's travel times, minutes
     day: jnp.ndarray  # int32
-    travel_params: Any = None  # parameters of travel_time_fn (e.g. the surrogate's), if any
 
 
 @dataclass(frozen=True, eq=False)
 class RoutingEnv:
     scenario: Scenario
     is_cav: np.ndarray  # [N] bool, fixed after mutation
-    travel_time_fn: TravelTimeFn
+    travel_time_fn: TravelTimeFn | None = None  # None: days are simulated outside (step_with_times)
     human_params: HumanParams = field(default_factory=HumanParams)
     reward_coefficients: tuple[float, float, float, float] = (-1.0, 0.0, 0.0, 0.0)
     observation_type: str = "previous_agents_plus_start_time"
     humans_adapt: bool = False  # humans keep learning while CAVs train
     human_init: HumanState | None = None  # trained human knowledge from the human phase
-    travel_params: Any = None  # if set: travel_time_fn(params, choices), params carried in the state
+    default_params: EnvParams = None  # set: travel_time_fn takes (params, choices); step's default
 
     def __post_init__(self) -> None:
         scn = self.scenario
@@ -63,12 +65,9 @@ class RoutingEnv:
         object.__setattr__(self, "cav_index", np.flatnonzero(is_cav))
         spec = make_observation_spec(self.observation_type, scn.agent_od, scn.agent_depart, scn.k)
         object.__setattr__(self, "obs_spec", spec)
-        depth = dependency_depth(scn.agent_od, scn.agent_depart, is_cav, self.observation_type)
-        object.__setattr__(self, "depth", max(depth, 1))
 
     cav_index: np.ndarray = field(init=False)
     obs_spec: ObservationSpec = field(init=False)
-    depth: int = field(init=False)
 
     # ---- sizes
     @property
@@ -97,6 +96,12 @@ class RoutingEnv:
         """[C] OD index of each CAV, e.g. for an OD embedding."""
         return self.scenario.agent_od[self.cav_index]
 
+    @property
+    def humans_learn(self) -> bool:
+        """Whether humans learn at the end of each day: when the task lets them adapt, and always
+        in an env without CAVs (such an env is the human learning phase, e.g. in benchmarks)."""
+        return self.humans_adapt or self.n_cavs == 0
+
     # ---- functional API
     def reset(self, key: jax.Array) -> tuple[jnp.ndarray, EnvState]:
         k_init, k_act = jax.random.split(key)
@@ -106,10 +111,9 @@ class RoutingEnv:
             fft, valid = jnp.asarray(scn.fft), jnp.asarray(scn.route_valid)
             humans = init_humans(k_init, fft, valid, self.human_params)
         human_actions = act(k_act, humans, self.human_params, jnp.asarray(scn.fft))
-        free_flow_choice = jnp.asarray(np.argmin(np.where(scn.route_valid, scn.fft, np.inf), axis=1))
-        cav_actions = free_flow_choice[self.cav_index].astype(jnp.int32)
+        cav_actions = jnp.asarray(aon_routes(scn.fft, scn.route_valid)[self.cav_index])
         state = EnvState(humans, human_actions, cav_actions, jnp.asarray(scn.fft_full.min(axis=1)),
-                         jnp.zeros((), jnp.int32), self.travel_params)
+                         jnp.zeros((), jnp.int32))
         return self.observe(state, cav_actions), state
 
     def joint_actions(self, state: EnvState, cav_actions: jnp.ndarray) -> jnp.ndarray:
@@ -121,59 +125,48 @@ class RoutingEnv:
         obs_all = observe(self.obs_spec, self.joint_actions(state, cav_actions))
         return obs_all[self.cav_index]
 
-    @staticmethod
-    def with_travel_params(state: EnvState, params: Any) -> EnvState:
-        """Swap the travel-time parameters of a (batched) state; batch axes are broadcast."""
-        batch = state.day.shape
-        return state._replace(travel_params=jax.tree_util.tree_map(
-            lambda p: jnp.broadcast_to(p, batch + jnp.shape(p)), params))
-
     def global_state(self, obs: jnp.ndarray) -> jnp.ndarray:
         """Centralised critic / mixer input: every CAV's observation, flattened [C * obs_size]."""
         return obs.reshape(*obs.shape[:-2], -1)
 
-    def act_in_order(
-        self, key: jax.Array, state: EnvState, policy: PolicyFn
-    ) -> tuple[jnp.ndarray, jnp.ndarray]:
-        """(obs [C, D], actions [C]) consistent with departure order. The same key is used in every
-        round, so a CAV's action changes only if its observation did."""
-        actions = state.cav_actions
+    def travel_times(self, params: EnvParams, choices: jnp.ndarray) -> jnp.ndarray:
+        """[N] minutes of `choices` [N] from travel_time_fn (params None: default_params)."""
+        if self.travel_time_fn is None:
+            raise TypeError("this env has no travel_time_fn: its days are simulated outside "
+                            "(use step_with_times)")
+        if self.default_params is None:
+            return self.travel_time_fn(choices)
+        return self.travel_time_fn(self.default_params if params is None else params, choices)
 
-        def round_(actions, _):
-            obs = self.observe(state, actions)
-            return policy(key, obs).astype(jnp.int32), None
-
-        actions, _ = jax.lax.scan(round_, actions, None, length=self.depth)
-        return self.observe(state, actions), actions
-
-    def step(
-        self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray
-    ) -> tuple[jnp.ndarray, EnvState, jnp.ndarray, jnp.ndarray, dict[str, jnp.ndarray]]:
-        """Simulate one day. Returns (provisional obs for tomorrow, state, CAV rewards [C],
-        dones [C] (every day ends the CAVs' episode, as in URB), info)."""
-        k_learn, k_act = jax.random.split(key)
+    def step(self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray,
+             params: EnvParams = None) -> StepResult:
+        """Simulate one day with travel_time_fn under `params` (default_params when None). Returns
+        (provisional obs for tomorrow, state, CAV rewards [C], dones [C] (every day ends the CAVs'
+        episode, as in URB), info)."""
         choices = self.joint_actions(state, cav_actions)
-        if self.travel_params is None:
-            times = self.travel_time_fn(choices)
-        else:
-            times = self.travel_time_fn(state.travel_params, choices)
-        rewards_all = cav_rewards(times, jnp.asarray(self.is_cav), self.reward_coefficients)
-        humans = state.humans
-        if self.humans_adapt or self.n_cavs == 0:
-            is_human = ~jnp.asarray(self.is_cav)
-            humans = learn(k_learn, humans, choices, times, self.human_params, learning=is_human)
-        else:
-            humans = humans._replace(last_action=choices)
-        human_actions = act(k_act, humans, self.human_params, jnp.asarray(self.scenario.fft))
-        new_state = EnvState(humans, human_actions, cav_actions.astype(jnp.int32), times, state.day + 1,
-                             state.travel_params)
-        rewards = rewards_all[self.cav_index]
-        dones = jnp.ones((self.n_cavs,), dtype=bool)
+        return self._end_day(key, state, cav_actions, choices, self.travel_times(params, choices))
+
+    def step_with_times(self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray,
+                        times: jnp.ndarray) -> StepResult:
+        """The same day with measured travel times [N] (minutes, e.g. SUMO's) of today's choices."""
+        return self._end_day(key, state, cav_actions, self.joint_actions(state, cav_actions), times)
+
+    def _end_day(self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray, choices: jnp.ndarray,
+                 times: jnp.ndarray) -> StepResult:
+        """The one day transition: CAV rewards, the humans' day end, tomorrow's human choices."""
+        k_learn, k_act = jax.random.split(key)
         is_cav = jnp.asarray(self.is_cav)
+        rewards_all = cav_rewards(times, is_cav, self.reward_coefficients)
+        humans = end_day(k_learn, state.humans, choices, times, self.human_params, self.is_cav,
+                         self.humans_learn)
+        human_actions = act(k_act, humans, self.human_params, jnp.asarray(self.scenario.fft))
+        new_state = EnvState(humans, human_actions, cav_actions.astype(jnp.int32), times, state.day + 1)
         info = {
             "times": times,
             "choices": choices,
             "mean_time_cav": jnp.where(is_cav, times, 0.0).sum() / jnp.maximum(is_cav.sum(), 1),
             "mean_time_human": jnp.where(~is_cav, times, 0.0).sum() / jnp.maximum((~is_cav).sum(), 1),
         }
-        return self.observe(new_state, new_state.cav_actions), new_state, rewards, dones, info
+        dones = jnp.ones((self.n_cavs,), dtype=bool)
+        next_obs = self.observe(new_state, new_state.cav_actions)
+        return next_obs, new_state, rewards_all[self.cav_index], dones, info

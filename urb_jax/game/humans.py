@@ -27,6 +27,9 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from urb_jax.core.errors import ConfigError
 
 HUMAN_MODELS = ("gawron", "culo", "weighted", "random", "aon")
 
@@ -46,8 +49,6 @@ class HumanParams:
     routerl_literal: bool = False
 
     def __post_init__(self) -> None:
-        from urb_jax.core.errors import ConfigError
-
         if self.model not in HUMAN_MODELS:
             raise ConfigError(
                 f"human_model '{self.model}' is unknown. Fix: use one of {', '.join(HUMAN_MODELS)}."
@@ -75,6 +76,13 @@ def init_humans(key: jax.Array, fft: jnp.ndarray, valid: jnp.ndarray, params: Hu
     return HumanState(cost, beta, jnp.full((n,), -1, dtype=jnp.int32), memory)
 
 
+def aon_routes(fft: np.ndarray | jax.Array, valid: np.ndarray | jax.Array) -> np.ndarray | jax.Array:
+    """[N] each row's minimum free-flow route (the first on ties, padding repeats excluded): URB's
+    all-or-nothing choice. numpy in, numpy out (float64 fft, exact); jax in, jax out (traceable)."""
+    xp = np if isinstance(fft, np.ndarray) and isinstance(valid, np.ndarray) else jnp
+    return xp.argmin(xp.where(valid, fft, xp.inf), axis=1).astype(xp.int32)
+
+
 def _scores(state: HumanState, params: HumanParams) -> jnp.ndarray:
     """Higher is preferred. Paper: -|beta| C. RouteRL literal: beta * c with c = -C."""
     cost = state.cost
@@ -93,8 +101,7 @@ def act(
     valid = jnp.isfinite(state.cost)
     k_choice, k_explore, k_uniform = jax.random.split(key, 3)
     if params.model == "aon":
-        base = jnp.argmin(jnp.where(valid, fft if fft is not None else state.cost, jnp.inf), axis=1)
-        return base.astype(jnp.int32)
+        return aon_routes(fft if fft is not None else state.cost, valid)
     uniform = jax.random.categorical(k_uniform, jnp.where(valid, 0.0, -jnp.inf), axis=1)
     if params.model == "random":
         return uniform.astype(jnp.int32)
@@ -155,3 +162,27 @@ def learn(
     new = jnp.where(learning, new, c_a)
     cost = state.cost.at[rows, actions].set(new)
     return HumanState(cost, state.beta, actions.astype(jnp.int32), memory)
+
+
+def end_day(
+    key: jax.Array, state: HumanState, choices: jnp.ndarray, times: jnp.ndarray, params: HumanParams,
+    is_cav: np.ndarray | jnp.ndarray, learn_today: bool,
+) -> HumanState:
+    """Human knowledge after a day of `choices` [N] and `times` [N] (minutes): the one day-end rule.
+
+    On a learning day the humans (not the CAVs) update their expected times (`learn`); otherwise
+    their knowledge is frozen and everyone only remembers today's route (`last_action`, the
+    reference of the switching threshold). Whether a day is a learning day is the caller's phase
+    rule (`RoutingEnv.humans_learn`, the SUMO protocol's `should_humans_adapt`).
+    """
+    if learn_today:
+        return learn(key, state, choices, times, params, learning=~jnp.asarray(is_cav))
+    return state._replace(last_action=jnp.asarray(choices, jnp.int32))
+
+
+# Jitted entry points for callers that run day by day outside jit (the SUMO protocol, PettingZoo,
+# the human baseline): one compilation per HumanParams, shared by every caller.
+init_humans_jit = jax.jit(init_humans, static_argnames=("params",))
+act_jit = jax.jit(act, static_argnames=("params",))
+learn_jit = jax.jit(learn, static_argnames=("params",))
+end_day_jit = jax.jit(end_day, static_argnames=("params", "learn_today"))

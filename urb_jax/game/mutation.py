@@ -14,6 +14,8 @@ import random
 
 import numpy as np
 
+from urb_jax.core.errors import ConfigError
+
 METHODS = ("urb", "numpy")
 
 
@@ -25,8 +27,6 @@ def draw_cavs(env_seed: int, n_agents: int, share: float, agent_id: np.ndarray |
     network, so ascending id = agents.csv order); None means positions are already in csv order.
     `method="numpy"` is the old independent uniform draw (same distribution, different set).
     """
-    from urb_jax.core.errors import ConfigError
-
     if not 0.0 <= share <= 1.0:
         raise ConfigError(f"ratio_machines must be in [0, 1], got {share}")
     if method not in METHODS:

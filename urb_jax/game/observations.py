@@ -10,10 +10,9 @@ URB observes humans who depart between two CAV turns with yesterday's choice (a 
 means. Counts come from one cumulative sum over agents sorted by (group, departure): no loop over
 agents, O(N*K) per day, and it runs inside jit.
 
-Earlier CAVs' actions enter later CAVs' observations, so the day is sequential in principle. With
-a fixed per-agent key, a policy's action is a function of its observation; iterating
-`obs -> actions -> obs` `depth` times (`dependency_depth`) reproduces the sequential order
-exactly, with each round vectorised over all agents.
+Earlier CAVs' actions enter later CAVs' observations, so the day is sequential in principle; the
+group ids kept in the spec say which CAVs depend on which (`urb_jax.game.rollout` acts level by
+level on them).
 """
 
 from __future__ import annotations
@@ -23,6 +22,8 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from urb_jax.core.errors import ConfigError
 
 OBSERVATION_TYPES = ("previous_agents_plus_start_time", "previous_agents", "global_previous_agents")
 
@@ -55,14 +56,9 @@ def prefix_index(group: np.ndarray, depart: np.ndarray) -> PrefixIndex:
     return PrefixIndex(order, inverse, group_start, tie_start)
 
 
-def earlier_counts(index: PrefixIndex, actions: jnp.ndarray, k: int, include: jnp.ndarray | None = None):
-    """[N, K]: per agent, how many agents of its group departed strictly earlier with action k.
-
-    `include` [N] bool restricts which agents are counted (e.g. only those that already chose).
-    """
+def earlier_counts(index: PrefixIndex, actions: jnp.ndarray, k: int) -> jnp.ndarray:
+    """[N, K]: per agent, how many agents of its group departed strictly earlier with action k."""
     onehot = jax.nn.one_hot(actions, k, dtype=jnp.float32)
-    if include is not None:
-        onehot = onehot * include[:, None]
     sorted_onehot = onehot[index.order]
     before = jnp.concatenate([jnp.zeros((1, k)), jnp.cumsum(sorted_onehot, axis=0)[:-1]], axis=0)
     counts_sorted = before[index.tie_start] - before[index.group_start]
@@ -73,6 +69,7 @@ def earlier_counts(index: PrefixIndex, actions: jnp.ndarray, k: int, include: jn
 class ObservationSpec:
     kind: str
     index: PrefixIndex
+    group: np.ndarray  # [N] observation group: the OD pair, or 0 for everyone (global variant)
     depart: np.ndarray  # [N] seconds
     k: int
 
@@ -83,11 +80,9 @@ class ObservationSpec:
 
 def make_observation_spec(kind: str, od: np.ndarray, depart: np.ndarray, k: int) -> ObservationSpec:
     if kind not in OBSERVATION_TYPES:
-        from urb_jax.core.errors import ConfigError
-
         raise ConfigError(f"unknown observations '{kind}'. Fix: use one of {', '.join(OBSERVATION_TYPES)}.")
     group = np.zeros_like(od) if kind == "global_previous_agents" else od
-    return ObservationSpec(kind, prefix_index(group, depart), np.asarray(depart), k)
+    return ObservationSpec(kind, prefix_index(group, depart), np.asarray(group), np.asarray(depart), k)
 
 
 def observe(spec: ObservationSpec, actions: jnp.ndarray) -> jnp.ndarray:
@@ -98,13 +93,3 @@ def observe(spec: ObservationSpec, actions: jnp.ndarray) -> jnp.ndarray:
     start = jnp.asarray(spec.depart, dtype=jnp.float32)[:, None]
     return jnp.concatenate([start, counts], axis=-1)
 
-
-def dependency_depth(od: np.ndarray, depart: np.ndarray, is_cav: np.ndarray, kind: str) -> int:
-    """Rounds of obs->act needed for exact departure-order semantics: the longest chain of CAVs of
-    one group with strictly increasing departures (a CAV's observation depends on earlier ones)."""
-    group = np.zeros_like(od) if kind == "global_previous_agents" else np.asarray(od)
-    depth = 0
-    for g in np.unique(group[is_cav]):
-        times = np.unique(np.asarray(depart)[is_cav & (group == g)])
-        depth = max(depth, len(times))
-    return depth

@@ -1,8 +1,8 @@
 """The hybrid trainer's jitted pieces, built once per seed group in one place.
 
 Every piece is vmapped over the leading seed axis [S]. This is also the trainer's one seam with
-the env on real (SUMO) days: the real-day env, CAVs acting in departure order on it, feeding it
-SUMO's travel times, and swapping the surrogate parameters of the training envs all live here.
+the env on real (SUMO) days: the real-day env, CAVs acting in departure order on it, and feeding it
+SUMO's measured travel times (`RoutingEnv.step_with_times`) all live here.
 """
 
 from __future__ import annotations
@@ -13,8 +13,9 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from urb_jax.algorithms.learner import Day, Learner, act_by_levels, dependency_levels
+from urb_jax.algorithms.learner import Day, Learner
 from urb_jax.game.env import EnvState, RoutingEnv
+from urb_jax.game.rollout import act_by_levels, dependency_levels
 from urb_jax.surrogate import Static, predict
 from urb_jax.surrogate.calibrate import Params
 
@@ -35,7 +36,6 @@ class TrainerFns(NamedTuple):
     # (keys [S, P, 2], real [S, P], obs, actions, SUMO times [S, P, N]) -> (real, days [S, 1, P, ...])
     sumo_step: Callable[[jax.Array, EnvState, jnp.ndarray, jnp.ndarray, jnp.ndarray], tuple[EnvState, Day]]
     predict_days: Callable[[Params, jnp.ndarray], jnp.ndarray]  # surrogate times [S, P, N]
-    set_params: Callable[[EnvState, Params], EnvState]  # the training envs get new surrogate params
     split_p: Callable[[jax.Array], jax.Array]  # keys [S, 2] -> [S, P, 2]
     round_keys: Callable[[jax.Array, int], jax.Array]  # (keys [S, 2], round) -> [S, 4, 2]
     fresh_runner_real: Callable[[jax.Array], tuple[Runner, EnvState]]  # start keys [S, 2]
@@ -44,9 +44,7 @@ class TrainerFns(NamedTuple):
 def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, static: Static, P: int,
               n_iters_round: int) -> TrainerFns:
     """The pieces for `learner` trained on the surrogate env `env`, P real days per round."""
-    n = env.scenario.n_agents
-    real_env = RoutingEnv(env.scenario, env.is_cav, lambda p, c: p, human_init=env.human_init,
-                          travel_params=jnp.zeros((n,), jnp.float32), **env_kwargs)
+    real_env = RoutingEnv(env.scenario, env.is_cav, human_init=env.human_init, **env_kwargs)  # SUMO days
     levels = dependency_levels(env)
 
     def _sur_round(runner: Runner, key: jax.Array) -> tuple[Runner, Metrics]:
@@ -60,8 +58,8 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
 
     def _sumo_step(keys: jax.Array, states: EnvState, obs: jnp.ndarray, actions: jnp.ndarray,
                    times: jnp.ndarray) -> tuple[EnvState, Day]:
-        states = states._replace(travel_params=times)
-        next_obs, states, rewards, dones, info = jax.vmap(real_env.step)(keys, states, actions)
+        step = jax.vmap(real_env.step_with_times)
+        next_obs, states, rewards, dones, info = step(keys, states, actions, times)
         day = Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"])
         return states, jax.tree_util.tree_map(lambda x: x[None], day)  # [1, P, ...]
 
@@ -81,7 +79,6 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
         act_greedy=jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, False))),
         sumo_step=jax.jit(jax.vmap(_sumo_step)),
         predict_days=jax.jit(jax.vmap(lambda params, choices: predict(params, static, choices))),
-        set_params=jax.jit(jax.vmap(RoutingEnv.with_travel_params)),
         split_p=jax.vmap(lambda k: jax.random.split(k, P)),
         round_keys=jax.jit(jax.vmap(lambda k, r: jax.random.split(jax.random.fold_in(k, r), 4), (0, None))),
         fresh_runner_real=fresh_runner_real,

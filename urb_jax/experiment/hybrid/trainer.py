@@ -22,7 +22,6 @@ import numpy as np
 from urb_jax.algorithms.learner import Day
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.progress import Progress
-from urb_jax.experiment.baselines import aon_routes
 from urb_jax.experiment.checkpoints import RoundMeta, restore_round, save_round
 from urb_jax.experiment.human_phase import HumanPhase
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns
@@ -37,7 +36,7 @@ from urb_jax.experiment.hybrid.plan import (
 from urb_jax.experiment.protocol import PHASE_TEST, PHASE_TRAIN
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import EnvState, RoutingEnv
-from urb_jax.game.humans import HumanState, init_humans
+from urb_jax.game.humans import HumanState, aon_routes, init_humans
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.results.records import DayRecord, RecordsWriter
 from urb_jax.sumo_bridge import DayExecutor, DayResult
@@ -130,7 +129,7 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     p0 = {**init_params(static), "route_bias": jnp.zeros((n, scn.k), jnp.float32)}
     if humans is None:  # shapes only: the checkpoint overwrites it
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid), hp)
-    env = RoutingEnv(scn, is_cav, sur_fn, human_init=humans, travel_params=p0, **env_kwargs)
+    env = RoutingEnv(scn, is_cav, sur_fn, human_init=humans, default_params=p0, **env_kwargs)
     probe, _ = learner_for(alg, alg_config, env, cfg, 1, mode)
     plan = plan_rounds(cfg, mode, probe.days_per_iter)
     learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
@@ -202,7 +201,7 @@ class HybridTrainer:
     def set_params(self) -> None:
         """The training envs of every seed's runner get the seed's current surrogate parameters."""
         s = self.state
-        runner = s.runner._replace(env_states=self.g.fns.set_params(s.runner.env_states, s.params))
+        runner = s.runner._replace(env_params=s.params)  # [S, ...]; collect gives each env a copy
         self.state = s._replace(runner=runner)
 
     # ---- a round
