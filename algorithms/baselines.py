@@ -47,8 +47,16 @@ class CavPolicy(Protocol):
               rewards: np.ndarray) -> Any: ...
 
 
+class _FixedRule:
+    """A rule that does not learn: training days leave its state as it is."""
+
+    def learn(self, key: jax.Array, state: jnp.ndarray, obs: np.ndarray, actions: np.ndarray,
+              rewards: np.ndarray) -> jnp.ndarray:
+        return state
+
+
 @dataclass(frozen=True)
-class AonPolicy:
+class AonPolicy(_FixedRule):
     name: str = "aon"
     uses_observation: bool = False
 
@@ -60,13 +68,9 @@ class AonPolicy:
             ) -> jnp.ndarray:
         return take_agents(state, idx)
 
-    def learn(self, key: jax.Array, state: jnp.ndarray, obs: np.ndarray, actions: np.ndarray,
-              rewards: np.ndarray) -> jnp.ndarray:
-        return state
-
 
 @dataclass(frozen=True)
-class RandomPolicy:
+class RandomPolicy(_FixedRule):
     name: str = "random"
     uses_observation: bool = False
 
@@ -78,10 +82,6 @@ class RandomPolicy:
     def act(self, key: jax.Array, state: jnp.ndarray, obs: jnp.ndarray, idx: jnp.ndarray | None = None
             ) -> jnp.ndarray:
         return jax.random.categorical(key, take_agents(state, idx), axis=-1).astype(jnp.int32)
-
-    def learn(self, key: jax.Array, state: jnp.ndarray, obs: np.ndarray, actions: np.ndarray,
-              rewards: np.ndarray) -> jnp.ndarray:
-        return state
 
 
 @dataclass(frozen=True)
