@@ -29,6 +29,7 @@ from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.configio import to_dict
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.progress import Progress
+from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import (
     HumanPhase,
     load_replay,
@@ -41,7 +42,9 @@ from urb_jax.experiment.hybrid.trainer import Stopped, TrainSummary, train_group
 from urb_jax.experiment.protocol import DayFn, run_experiment
 from urb_jax.experiment.run_folder import (
     CONFIG_FILE,
+    check_exp_id,
     create_results_dir,
+    lock_run,
     mark_done,
     versions,
     write_config,
@@ -49,7 +52,7 @@ from urb_jax.experiment.run_folder import (
     write_rounds,
 )
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
-from urb_jax.results.records import RecordsWriter
+from urb_jax.results.records import RecordsWriter, remove_parts
 from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoPool, run_day
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
@@ -170,12 +173,22 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
     """Continue results/<exp_id>/ (and the seeds trained together with it) from the group's newest
     checkpoint, with the recorded arguments (and the recorded SUMO executor unless `executor_kind`
     overrides it); one result per seed of the group."""
-    folder = Path(results_dir) / exp_id
+    folder = Path(results_dir) / check_exp_id(exp_id)
+    if not (folder / CONFIG_FILE).is_file():
+        raise UrbJaxError(f"{folder}: no urb-jax run '{exp_id}' here (no {CONFIG_FILE}). Fix: pass the id "
+                          "of a run in --results-dir (`ls {results_dir}`), or the --results-dir it used.")
     config = json.loads((folder / CONFIG_FILE).read_text())
     folders = [Path(results_dir) / name for name in config.get("group", [exp_id])]
+    for f in folders:
+        lock_run(f)
     configs = [json.loads((f / CONFIG_FILE).read_text()) for f in folders]
     if all(c.get("status") == "done" for c in configs):
+        for f in folders:
+            remove_parts(f)  # a kill after the last exp_config write left them
         raise UrbJaxError(f"{folder}: this run is already complete.")
+    if latest_checkpoint(folders[0]) is None:
+        raise UrbJaxError(f"{folders[0]}: no complete checkpoint to resume from (the run was stopped "
+                          "before its first round ended). Fix: start it again with --overwrite.")
     args: TrainArgs = configs[0]["train_args"]
     seeds = [c["train_args"]["seed"] for c in configs]
     setup = load_setup(args)

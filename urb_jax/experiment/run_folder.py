@@ -3,8 +3,11 @@ marked done at the end, and the finishing step that turns records into metric fi
 
 from __future__ import annotations
 
+import fcntl
+import logging
 import os
 import platform
+import re
 import shutil
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -14,24 +17,74 @@ import pandas as pd
 
 from urb_jax.core.atomic import write_bytes, write_json
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.results.records import write_plots, write_run_metrics
+from urb_jax.results.records import remove_parts, write_plots, write_run_metrics
 
 CONFIG_FILE = "exp_config.json"
+log = logging.getLogger(__name__)
 
 
 class ResultsExistError(UrbJaxError):
     """The experiment id is taken."""
 
 
+ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
+_LOCKS: dict[Path, int] = {}  # run folder -> open, flock-ed lock file, held until the process ends
+
+
+def check_exp_id(exp_id: str) -> str:
+    """An experiment id is one plain path component: letters, digits, '.', '_', '+', '-', not
+    starting with '.' (so never '.', '..', a path or an absolute path)."""
+    if not ID_PATTERN.fullmatch(exp_id or ""):
+        raise UrbJaxError(f"--id {exp_id!r}: an experiment id is one plain name (letters, digits, "
+                          "'.', '_', '+', '-'; no '/', not starting with '.'). Fix: pass e.g. --id iql_run1.")
+    return exp_id
+
+
+def lock_run(folder: Path) -> None:
+    """Make this process the one writer of `folder` (an flock on results/.<id>.lock, released by
+    the OS when the process ends, so a crashed owner leaves no stale lock behind)."""
+    folder = folder.resolve()
+    if folder in _LOCKS:
+        return
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    path = folder.parent / f".{folder.name}.lock"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        owner = os.read(fd, 64).decode(errors="replace").strip() or "?"
+        os.close(fd)
+        raise UrbJaxError(f"{folder}: run '{folder.name}' is being written by process {owner}. Fix: wait "
+                          "for it to finish, or pass another --id.") from None
+    previous = os.read(fd, 64).decode(errors="replace").strip()
+    if previous and previous != str(os.getpid()):
+        log.warning("%s: taking over the lock of process %s, which has ended", folder, previous)
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    _LOCKS[folder] = fd
+
+
 def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = False) -> Path:
-    """A fresh results/<exp_id>/; refuses an existing one unless `overwrite`."""
-    path = Path(root) / exp_id
+    """A fresh results/<exp_id>/, locked by this process; refuses an existing one unless `overwrite`,
+    and `overwrite` removes only a urb-jax run (a folder with exp_config.json) that no live
+    process is writing."""
+    path = Path(root) / check_exp_id(exp_id)
+    if Path(root).exists() and not Path(root).is_dir():
+        raise UrbJaxError(f"--results-dir {root}: is a file, not a folder. Fix: pass a folder.")
+    try:
+        lock_run(path)
+    except PermissionError as exc:
+        raise UrbJaxError(f"--results-dir {root}: cannot write there ({exc.strerror}). Fix: pass a "
+                          "folder you can write to.") from None
     if path.exists():
         if not overwrite:
             raise ResultsExistError(
                 f"{path}: results for experiment id '{exp_id}' already exist. "
                 "Fix: pass another --id, or --overwrite to replace them."
             )
+        if not (path / CONFIG_FILE).is_file():
+            raise ResultsExistError(f"{path}: exists but is not a urb-jax run (no {CONFIG_FILE}), so "
+                                    "--overwrite will not remove it. Fix: pass another --id.")
         shutil.rmtree(path)
     path.mkdir(parents=True)
     return path
@@ -60,9 +113,11 @@ def write_outputs(folder: Path, human_days: int, training_days: int) -> dict[str
 
 
 def mark_done(folder: Path, config: dict[str, Any], **updates: Any) -> None:
-    """exp_config.json with status done and `updates`: a run's last write (without it, unfinished)."""
+    """exp_config.json with status done and `updates` (without it, the run is unfinished), then the
+    merged records' parts go: the finish is ordered so that a kill at any instant resumes."""
     config.update(status="done", **updates)
     write_config(folder, config)
+    remove_parts(folder)
 
 
 def write_rounds(folder: Path, rounds: list[dict[str, float]]) -> None:

@@ -2,8 +2,8 @@
 
 Records are written incrementally as Parquet parts under `records.parts/` (each part written to a
 temporary name and renamed, so a reader never sees half a part); `close()` compacts them into
-one `records.parquet` (again via rename) and removes the parts. A crashed run leaves readable
-complete parts; `read_records` reads either form.
+one `records.parquet` (again via rename); the parts are removed only once the run is marked done.
+A crashed run leaves readable complete parts; `read_records` reads either form.
 """
 
 from __future__ import annotations
@@ -74,10 +74,13 @@ class RecordsWriter:
         return self._n_parts
 
     def truncate(self, n_parts: int) -> None:
-        """Drop the parts written after the first `n_parts`: a resumed run writes those days again."""
+        """Drop the parts written after the first `n_parts`: a resumed run writes those days again.
+        Until a run is done its parts are the records; a merged file from a later instant (a kill
+        after `close`) is derived from them and goes too, to be merged again at the end."""
         for p in self.parts.glob("part-*.parquet"):
             if int(p.stem.split("-")[1]) >= n_parts:
                 p.unlink()
+        (self.folder / RECORDS_FILE).unlink(missing_ok=True)
         self._n_parts = n_parts
 
     def __call__(self, rec: DayRecord) -> None:
@@ -118,15 +121,22 @@ class RecordsWriter:
         self._pending = []
 
     def close(self) -> Path:
-        """Flush and compact every part into one records.parquet (atomic)."""
+        """Flush and compact every part into one records.parquet (atomic, fsynced). The parts stay
+        until the run is marked done (`remove_parts`), so a kill at any instant of the finish
+        leaves either the parts or the parts and a complete merged file."""
         self.flush()
         target = self.folder / RECORDS_FILE
         parts = sorted(self.parts.glob("part-*.parquet"))
         with atomic_path(target) as tmp, pq.ParquetWriter(tmp, SCHEMA, compression="zstd") as writer:
             for p in parts:
                 writer.write_table(pq.read_table(p, schema=SCHEMA))
-        shutil.rmtree(self.parts)
         return target
+
+
+def remove_parts(folder: str | os.PathLike) -> None:
+    """The last step of a finished run: the parts, now merged into records.parquet, go."""
+    if (Path(folder) / RECORDS_FILE).is_file():
+        shutil.rmtree(Path(folder) / PARTS_DIR, ignore_errors=True)
 
 
 def read_records(folder: str | os.PathLike, columns: Sequence[str] | None = None) -> pd.DataFrame:

@@ -1,0 +1,134 @@
+"""Nothing lost: a run killed at any instant of its finish resumes to the same records and
+metrics; ids are plain names; --overwrite removes only a urb-jax run; one writer per folder."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_hybrid_loop import FakeExecutor, _train, confs  # noqa: F401  (module fixture)
+
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment import run as run_module
+from urb_jax.experiment import run_folder
+from urb_jax.experiment.run import resume_train
+from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir
+from urb_jax.results import records as records_module
+
+
+def _digest(folder: Path) -> tuple[str, str]:
+    return tuple(hashlib.sha256((folder / f).read_bytes()).hexdigest()
+                 for f in ("records.parquet", "metrics/BenchmarkMetrics.csv"))
+
+
+class Killed(BaseException):
+    """A kill -9 stand-in: nothing after the raising step runs (not an Exception, no cleanup)."""
+
+
+@pytest.mark.parametrize("instant", ["after_merge", "after_metrics", "after_done"])
+def test_kill_at_every_instant_of_the_finish_resumes_identically(confs, tmp_path, monkeypatch, instant):  # noqa: F811
+    """The case that lost data: records merged and parts deleted before `status: done`, so the
+    resume replayed the test days over a test-only records file (123,200 rows became 40,000)."""
+    (ref,) = _train(confs, tmp_path, "ref")
+    want = _digest(ref.folder)
+
+    def die(*_, **__):
+        raise Killed(instant)
+
+    if instant == "after_merge":  # records.parquet written, nothing else
+        monkeypatch.setattr(run_module, "write_outputs", die)
+    elif instant == "after_metrics":  # metric files written too, exp_config still says running
+        real = run_folder.write_config
+        monkeypatch.setattr(run_module, "mark_done", lambda folder, config, **u: die())
+        monkeypatch.setattr(run_folder, "write_config", real)
+    else:  # exp_config says done, the merged parts not yet removed
+        monkeypatch.setattr(run_folder, "remove_parts", die)
+    with pytest.raises(Killed):
+        _train(confs, tmp_path, "k")
+    monkeypatch.undo()
+    folder = tmp_path / "k"
+    assert (folder / "records.parts").is_dir()  # the parts outlive every instant before done
+    if instant == "after_done":
+        with pytest.raises(UrbJaxError, match="already complete"):
+            resume_train("k", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+        assert not (folder / "records.parts").exists()  # the interrupted last step, finished
+    else:
+        resume_train("k", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    assert json.loads((folder / "exp_config.json").read_text())["status"] == "done"
+    assert _digest(folder) == want
+    assert not (folder / "records.parts").exists()
+
+
+def test_truncate_drops_a_merged_file_from_a_later_instant(tmp_path):
+    (tmp_path / records_module.RECORDS_FILE).write_bytes(b"stale")
+    writer = records_module.RecordsWriter(tmp_path, [1], [0], [0])
+    writer.truncate(0)
+    assert not (tmp_path / records_module.RECORDS_FILE).exists()
+
+
+@pytest.mark.parametrize("bad", [".", "..", "../x", "/tmp/x", "a/b", "", ".hidden", "a b"])
+def test_an_id_is_one_plain_name(tmp_path, bad):
+    """`--id . --overwrite` deleted every run in the results dir; '..' or an absolute path any folder."""
+    keep = tmp_path / "other_run"
+    keep.mkdir()
+    (keep / "exp_config.json").write_text("{}")
+    with pytest.raises(UrbJaxError, match=r"one plain name.*Fix: pass e.g. --id"):
+        create_results_dir(tmp_path, bad, overwrite=True)
+    assert (keep / "exp_config.json").is_file()
+
+
+def test_overwrite_removes_only_a_urb_jax_run(tmp_path):
+    mine = tmp_path / "notes"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("precious")
+    with pytest.raises(ResultsExistError, match=r"not a urb-jax run.*will not remove it"):
+        create_results_dir(tmp_path, "notes", overwrite=True)
+    assert (mine / "thesis.tex").read_text() == "precious"
+
+
+def test_results_dir_that_is_a_file_is_named(tmp_path):
+    f = tmp_path / "results"
+    f.write_text("")
+    with pytest.raises(UrbJaxError, match="is a file, not a folder"):
+        create_results_dir(f, "x")
+
+
+HOLD = """
+import sys, time
+from urb_jax.experiment.run_folder import create_results_dir
+folder = create_results_dir(sys.argv[1], "same", overwrite=True)
+(folder / "exp_config.json").write_text("{}")
+print("locked", flush=True)
+time.sleep(60)
+"""
+
+
+def test_one_writer_per_run_folder(tmp_path):
+    """Two runs with one id and --overwrite both wrote into one folder (30 of 30 tries)."""
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(UrbJaxError, match=rf"being written by process {holder.pid}\. Fix: wait"):
+            create_results_dir(tmp_path, "same", overwrite=True)
+    finally:
+        holder.kill()
+        holder.wait()
+    # the owner died: its lock is gone with it, the next run takes the folder over
+    create_results_dir(tmp_path, "same", overwrite=True)
+    assert (tmp_path / ".same.lock").read_text().strip() == str(os.getpid())
+
+
+def test_resume_of_an_unknown_id_or_a_run_without_checkpoint(tmp_path):
+    with pytest.raises(UrbJaxError, match="no urb-jax run 'nope' here"):
+        resume_train("nope", results_dir=str(tmp_path), progress=False)
+    folder = create_results_dir(tmp_path, "early")
+    (folder / "exp_config.json").write_text(json.dumps({"status": "running", "train_args": {"seed": 0}}))
+    with pytest.raises(UrbJaxError, match=r"no complete checkpoint.*--overwrite"):
+        resume_train("early", results_dir=str(tmp_path), progress=False)
