@@ -132,3 +132,25 @@ def test_resume_of_an_unknown_id_or_a_run_without_checkpoint(tmp_path):
     (folder / "exp_config.json").write_text(json.dumps({"status": "running", "train_args": {"seed": 0}}))
     with pytest.raises(UrbJaxError, match=r"no complete checkpoint.*--overwrite"):
         resume_train("early", results_dir=str(tmp_path), progress=False)
+
+
+@pytest.mark.parametrize("days", [0, -5])
+def test_train_days_zero_or_negative_is_refused(tmp_path, days):
+    """--train-days 0 silently trained the 1,000-day default; negative budgets ran a full round."""
+    from urb_jax.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"--train-days {days}: .*Fix: pass --train-days 1 or more"):
+        run_module.run_train(train_days=days, results_dir=str(tmp_path), progress=False,
+                             executor=FakeExecutor())
+    assert not any(tmp_path.iterdir())  # refused before any folder or SUMO day
+
+
+def test_hybrid_config_values_are_validated(tmp_path):
+    from urb_jax.core.configio import load_json
+    from urb_jax.core.errors import ConfigError
+    from urb_jax.experiment.hybrid.plan import HybridConfig
+
+    bad = tmp_path / "hyb.json"
+    bad.write_text(json.dumps({"num_envs": 0}))
+    with pytest.raises(ConfigError, match=r"hyb.json: key 'num_envs' is 0\. Fix: use an integer >= 1"):
+        load_json(HybridConfig, bad)

@@ -27,7 +27,7 @@ from urb_jax.city.demand import scale_demand
 from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.configio import to_dict
-from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import (
@@ -89,7 +89,10 @@ def load_setup(args: TrainArgs) -> TrainSetup:
     task, task_path = load_task_config(args["task_conf"])
     env, env_path = load_env_config(args["env_conf"])
     hyb, hyb_path = load_hybrid_config(args["hybrid_conf"])
-    if args.get("train_days"):
+    if args.get("train_days") is not None:  # 0 is a value, not "use the config's"
+        if int(args["train_days"]) < 1:
+            raise ConfigError(f"--train-days {args['train_days']}: a run needs at least one training day. "
+                              "Fix: pass --train-days 1 or more (6000 is the paper's budget).")
         hyb = dataclasses.replace(hyb, train_days=int(args["train_days"]))
     alg_config = load_algo_config(args["alg"], args["alg_conf"])
     scn = _scenario(args["net"], args["networks_dir"], args["env_seed"], env, task)

@@ -12,6 +12,7 @@ from urb_jax.algorithms.configs import IPPOStarConfig, IQLConfig, IQLStarConfig,
 from urb_jax.algorithms.learner import Learner
 from urb_jax.algorithms.registry import algorithm
 from urb_jax.core.configio import find_config, load_json
+from urb_jax.core.errors import ConfigError
 from urb_jax.game.env import RoutingEnv
 
 MODES = ("hybrid", "sumo", "surrogate")
@@ -39,6 +40,22 @@ class HybridConfig:
     route_bias: bool = True  # correct the surrogate by SUMO's mean residual per (agent, route) driven
     route_bias_prior_days: float = 2.0  # shrinkage: residual x count / (count + prior days)
     reuse_identical_test_days: bool = True  # SUMO is deterministic: a repeated test day runs once
+
+    def __post_init__(self) -> None:
+        """Budgets and round sizes that cannot run are refused before any SUMO day."""
+        at_least = {"train_days": 1, "num_envs": 1, "sumo_workers": 1, "max_vmapped_seeds": 1,
+                    "surrogate_days_per_round": 0, "sumo_days_per_round": 0, "sumo_updates": 0,
+                    "calib_human_days": 0, "calib_varied_days": 0, "calib_steps": 0, "refit_days": 1,
+                    "refit_steps": 0}
+        for key, low in at_least.items():
+            if getattr(self, key) < low:
+                raise ConfigError(f"key '{key}' is {getattr(self, key)}. Fix: use an integer >= {low}.")
+        if self.surrogate_days_per_round + self.sumo_days_per_round < 1:
+            raise ConfigError("keys 'surrogate_days_per_round' and 'sumo_days_per_round' are both 0: a round "
+                              "would train on nothing. Fix: make one of them positive.")
+        if self.day_timeout_s <= 0 or self.route_bias_prior_days < 0:
+            raise ConfigError("key 'day_timeout_s' must be > 0 and 'route_bias_prior_days' >= 0. "
+                              "Fix: set them so.")
 
 
 def load_hybrid_config(name: str = "default") -> tuple[HybridConfig, Path]:
