@@ -17,6 +17,7 @@ from urb_jax.results.records import (
     RECORDS_FILE,
     RecordsWriter,
     read_records,
+    remove_parts,
 )
 
 TINY = {"human_learning_episodes": 3, "training_eps": 2, "test_eps": 2}
@@ -48,7 +49,9 @@ def test_parts_are_atomic_and_compacted(tmp_path):
     cav = np.array([False, True, False, True])
     w.add(_day(4, cav=cav))
     path = w.close()
-    assert path.name == RECORDS_FILE and not (tmp_path / PARTS_DIR).exists()
+    assert path.name == RECORDS_FILE and (tmp_path / PARTS_DIR).is_dir()  # kept until the run is done
+    remove_parts(tmp_path)
+    assert not (tmp_path / PARTS_DIR).exists()
     df = read_records(tmp_path)
     assert len(df) == 16 and sorted(df["day"].unique()) == [1, 2, 3, 4]
     d4 = df[df.day == 4].set_index("agent")
@@ -59,6 +62,7 @@ def test_parts_are_atomic_and_compacted(tmp_path):
 
 def test_refuses_to_overwrite(tmp_path):
     p = create_results_dir(tmp_path, "exp")
+    (p / "exp_config.json").write_text("{}")  # a urb-jax run (--overwrite removes nothing else)
     (p / "marker").write_text("x")
     with pytest.raises(ResultsExistError, match="--overwrite"):
         create_results_dir(tmp_path, "exp")
