@@ -202,6 +202,9 @@ def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypat
         (tmp_path / exp / "exp_config.json").write_text(json.dumps(
             {"status": "running",
              "train_args": {"executor": "ray", "ray_address": "ray://head:10001", "seed": 0}}))
+        ckpt = tmp_path / exp / "checkpoints" / "round_00001"  # a complete checkpoint: resumable
+        ckpt.mkdir(parents=True)
+        (ckpt / "meta.json").write_text("{}")
     asked = []
 
     class StopError(Exception):
