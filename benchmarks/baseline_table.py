@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from urb_jax.results.metrics import PRE_WINDOW
-from urb_jax.results.records import read_records
+from urb_jax.reporting.metrics import PRE_WINDOW
+from urb_jax.reporting.records import read_records
 
 PAPER = {  # network: (t_pre, AON t_CAV, random t_CAV), minutes (URB paper)
     "saint_arnoult": (3.15, 3.01, 3.58),

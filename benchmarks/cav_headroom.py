@@ -25,14 +25,14 @@ from pathlib import Path
 import numpy as np
 
 from urb_jax.game.humans import aon_routes
-from urb_jax.results.day_export import (
+from urb_jax.reporting.day_export import (
     cli_travel_times,
     day_routes_xml,
     recorded_day,
     run_config,
     scenario_of_run,
 )
-from urb_jax.results.records import read_records
+from urb_jax.reporting.records import read_records
 from urb_jax.sumo_bridge import run_day
 
 

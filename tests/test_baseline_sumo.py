@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 from urb_jax.experiment.run import run_baseline
-from urb_jax.results.records import read_records
+from urb_jax.reporting.records import read_records
 
 pytestmark = pytest.mark.sumo
 
@@ -41,7 +41,7 @@ def _check_export_replays(folder, scn, tmp_path, capsys):
     import json
 
     from urb_jax.commands.cli import main
-    from urb_jax.results.day_export import cli_travel_times
+    from urb_jax.reporting.day_export import cli_travel_times
 
     rou = tmp_path / "last.rou.xml"
     capsys.readouterr()

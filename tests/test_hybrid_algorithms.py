@@ -15,7 +15,7 @@ from test_hybrid_loop import FakeExecutor
 
 from urb_jax.algorithms.registry import ALGORITHMS
 from urb_jax.experiment.run import run_train
-from urb_jax.results.records import read_records
+from urb_jax.reporting.records import read_records
 
 TINY = {
     "iql": {"agent_frames_per_batch": 2, "mlp_depth": 1, "mlp_cells": 16, "minibatch_size": 64},

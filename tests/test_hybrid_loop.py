@@ -18,7 +18,7 @@ from fakeday import FakeDay
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.hybrid.trainer import HybridTrainer
 from urb_jax.experiment.run import resume_train, run_train
-from urb_jax.results.records import read_records
+from urb_jax.reporting.records import read_records
 
 H, E = 10, 10  # configs/task/test.json
 

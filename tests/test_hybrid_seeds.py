@@ -17,7 +17,7 @@ from test_hybrid_loop import FakeExecutor, H, confs  # noqa: F401  (confs is a f
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.run import resume_train, run_train
-from urb_jax.results.records import read_records
+from urb_jax.reporting.records import read_records
 
 P, ROUNDS = 2, 3
 

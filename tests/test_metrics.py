@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from urb_jax.results.metrics import compute_metrics, vector_metrics
+from urb_jax.reporting.metrics import compute_metrics, vector_metrics
 
 # Agents 10, 11 stay HDVs; 12 becomes a CAV on day 3. H = 2 human days, T = 2 training days,
 # days 5-6 test. Pre means: a10 3, a11 3, a12 5.

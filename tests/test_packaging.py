@@ -60,7 +60,7 @@ def test_every_module_and_data_file_is_installed(site: Path) -> None:
     wanted = [roots[r] + f[len(r):] for f in tracked for r in roots
               if f.startswith(r) and f.endswith((".py", ".json", ".xml", ".csv", ".txt"))
               and not (REPO / f).is_symlink()]
-    assert len(wanted) > 80 and "algorithms/registry.py" in wanted and "results/__init__.py" in wanted
+    assert len(wanted) > 80 and "algorithms/registry.py" in wanted and "reporting/__init__.py" in wanted
     missing = [w for w in wanted if not (pkg / w).is_file()]
     assert not missing
     assert not (pkg / "algorithms").is_symlink()  # a wheel carries files, not the checkout's links

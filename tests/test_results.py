@@ -11,8 +11,8 @@ from urb_jax.commands.cli import main
 from urb_jax.experiment.protocol import DayRecord
 from urb_jax.experiment.run import run_baseline
 from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir
-from urb_jax.results.leaderboard import aggregate, collect
-from urb_jax.results.records import (
+from urb_jax.reporting.leaderboard import aggregate, collect
+from urb_jax.reporting.records import (
     PARTS_DIR,
     RECORDS_FILE,
     RecordsWriter,

@@ -20,7 +20,7 @@ from urb_jax.experiment import run as run_module
 from urb_jax.experiment import run_folder
 from urb_jax.experiment.run import resume_train
 from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir
-from urb_jax.results import records as records_module
+from urb_jax.reporting import records as records_module
 
 
 def _digest(folder: Path) -> tuple[str, str]:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from urb_jax.results.day_export import day_routes_xml
+from urb_jax.reporting.day_export import day_routes_xml
 from urb_jax.sumo_bridge import ARRIVED, REMOVED_CAP, REMOVED_STUCK, SumoConfig, run_day
 
 pytestmark = pytest.mark.sumo

@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from urb_jax.results.day_export import export_day
+    from urb_jax.reporting.day_export import export_day
 
     out = args.out
     if out is None:

@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from urb_jax.core.atomic import write_bytes
-    from urb_jax.results.leaderboard import aggregate, collect, to_markdown
+    from urb_jax.reporting.leaderboard import aggregate, collect, to_markdown
 
     table = aggregate(collect(args.results_dir))
     md = to_markdown(table)

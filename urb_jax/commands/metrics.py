@@ -22,8 +22,8 @@ def recompute(folder: str) -> dict[str, float]:
     from pathlib import Path
 
     from urb_jax.core.errors import UrbJaxError
-    from urb_jax.results.day_export import run_config
-    from urb_jax.results.records import write_run_metrics
+    from urb_jax.reporting.day_export import run_config
+    from urb_jax.reporting.records import write_run_metrics
 
     cfg = run_config(folder)
     if cfg.get("status") != "done" or "training_days" not in cfg:

@@ -35,7 +35,7 @@ from urb_jax.experiment.hybrid.plan import HybridConfig
 from urb_jax.experiment.protocol import DayFn, train_humans
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.humans import HumanState
-from urb_jax.results.records import DayRecord, read_records
+from urb_jax.reporting.records import DayRecord, read_records
 from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult
 from urb_jax.surrogate import build_static, init_params
 from urb_jax.surrogate.data import make_choices

@@ -28,7 +28,7 @@ from urb_jax.game.humans import HumanParams, HumanState, act_jit, aon_routes, en
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.game.rewards import cav_rewards
 from urb_jax.game.rollout import act_at_once, act_by_levels
-from urb_jax.results.records import DayRecord
+from urb_jax.reporting.records import DayRecord
 from urb_jax.sumo_bridge import run_day
 
 PHASE_HUMAN, PHASE_TRAIN, PHASE_TEST = "human", "train", "test"

@@ -52,7 +52,7 @@ from urb_jax.experiment.run_folder import (
     write_rounds,
 )
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
-from urb_jax.results.records import RecordsWriter, remove_parts
+from urb_jax.reporting.records import RecordsWriter, remove_parts
 from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoPool, run_day
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 

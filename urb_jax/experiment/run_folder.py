@@ -17,7 +17,7 @@ import pandas as pd
 
 from urb_jax.core.atomic import write_bytes, write_json
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.results.records import remove_parts, write_plots, write_run_metrics
+from urb_jax.reporting.records import remove_parts, write_plots, write_run_metrics
 
 CONFIG_FILE = "exp_config.json"
 log = logging.getLogger(__name__)

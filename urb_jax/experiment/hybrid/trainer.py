@@ -38,7 +38,7 @@ from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
 from urb_jax.game.mutation import draw_cavs
-from urb_jax.results.records import DayRecord, RecordsWriter
+from urb_jax.reporting.records import DayRecord, RecordsWriter
 from urb_jax.sumo_bridge import DayExecutor, DayResult
 from urb_jax.sumo_bridge.memo import MemoExecutor
 from urb_jax.surrogate import SumoSample, build_static, init_params, predict

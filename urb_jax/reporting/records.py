@@ -21,7 +21,7 @@ import pyarrow.parquet as pq
 
 from urb_jax.core.atomic import atomic_path, write_bytes
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.results.metrics import compute_metrics, vector_metrics
+from urb_jax.reporting.metrics import compute_metrics, vector_metrics
 from urb_jax.sumo_bridge.types import DayResult
 
 

@@ -24,7 +24,7 @@ from urb_jax.city.routes import RouteParams
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.atomic import write_text
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.results.records import read_records
+from urb_jax.reporting.records import read_records
 from urb_jax.sumo_bridge.tripinfo import insertion_order
 
 VEHICLE_ATTRS = ('departLane="first" departPos="base" departSpeed="0" '

@@ -1,1 +1,0 @@
-"""Results: day records, metrics, plots, leaderboard and day export."""
