@@ -157,7 +157,11 @@ class SumoPool:
         self.slots[w.index] = nw
 
     def close(self) -> None:
+        """Idle workers stop; busy ones (a day abandoned by Ctrl-C or an error) are killed at once."""
         for w in self.slots:
+            if w.task is not None:
+                w.kill()
+                continue
             with contextlib.suppress(Exception):
                 w.conn.send(("stop",))
         for w in self.slots:

@@ -269,8 +269,9 @@ class RayExecutor:
     def close(self) -> None:
         ray = self._ray
         for s in self.slots:
-            with contextlib.suppress(Exception):
-                ray.get(s.actor.close.remote(), timeout=10)
+            if s.task is None:  # a busy actor (a day abandoned by Ctrl-C or an error) is killed at once
+                with contextlib.suppress(Exception):
+                    ray.get(s.actor.close.remote(), timeout=10)
             with contextlib.suppress(Exception):
                 ray.kill(s.actor, no_restart=True)
         self.slots = []

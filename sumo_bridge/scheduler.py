@@ -4,8 +4,9 @@ Days wait in a queue and go to idle workers one at a time; the scheduler waits o
 with the per-day wall-clock limit. A worker that fails (dies, raises, overruns the limit, cannot
 take the day) is restarted and its day retried once, first in the queue; a second failure of the
 same day restarts the other busy workers (their days are abandoned, the executor stays usable)
-and raises `SumoDayError` with both attempts. Any other exception (Ctrl-C included) abandons
-the days in flight the same way. A backend supplies only submit / wait / overdue / restart.
+and raises `SumoDayError` with both attempts. Any other exception abandons the days in flight
+the same way; Ctrl-C restarts nothing (the run is stopping, and closing the executor kills the
+busy workers at once). A backend supplies only submit / wait / overdue / restart.
 """
 
 from __future__ import annotations
@@ -110,6 +111,8 @@ class _Run(Generic[S]):
                 busy = [s for s in self.w.slots if s.task is not None]
                 if busy:
                     self._collect(busy)
+        except KeyboardInterrupt:
+            raise  # the run is stopping: no restarts; closing the executor kills the busy workers
         except BaseException:
             for s in list(self.w.slots):  # abandon the days in flight, keep the executor usable
                 if s.task is not None:

@@ -10,6 +10,7 @@ import sys
 from urb_jax import __version__
 from urb_jax.commands import COMMANDS
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.interrupt import EXIT_INTERRUPTED, InterruptedRunError, handle_interrupts
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,11 +31,18 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args) or 0)
-    except UrbJaxError as exc:
-        print(f"urb-jax: error: {exc}", file=sys.stderr)
-        return 2
+    with handle_interrupts():
+        try:
+            return int(args.func(args) or 0)
+        except InterruptedRunError as exc:
+            print(f"urb-jax: {exc}", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        except KeyboardInterrupt:
+            print("urb-jax: stopped by Ctrl-C.", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        except UrbJaxError as exc:
+            print(f"urb-jax: error: {exc}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":
