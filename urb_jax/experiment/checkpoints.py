@@ -3,11 +3,13 @@
 A round checkpoint is `checkpoints/round_NNNNN/` in the first folder of a seed group:
 `state/` (orbax, the group's arrays as numbered leaves), `sumo_days.npz` (every SUMO day so far,
 per seed) and `meta.json`, written last, so a directory with `meta.json` is complete. Older
-checkpoints are removed once the new one is complete.
+checkpoints are removed once the new one is complete; a partial one (no `meta.json`: a kill or a full
+disk while writing) is ignored by a resume and replaced.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import shutil
 from collections.abc import Sequence
@@ -68,19 +70,30 @@ def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: Ro
     """checkpoints/round_NNNNN/ in `folder` (the group's first), then the older ones removed."""
     d = folder / CKPT_DIR / f"round_{meta.rounds_done:05d}"
     if d.exists():
-        shutil.rmtree(d)
+        shutil.rmtree(d)  # a partial one (no meta.json) from a kill or a full disk
     d.mkdir(parents=True)
-    leaves = jax.tree_util.tree_leaves(state)
-    save_checkpoint(d / "state", {f"{i:05d}": np.asarray(x) for i, x in enumerate(leaves)})
+    leaves = {f"{i:05d}": np.asarray(x) for i, x in enumerate(jax.tree_util.tree_leaves(state))}
     arrays = {}
     for i, sample in enumerate(samples):
         arrays |= {f"choices_{i}": sample.choices, f"travel_time_{i}": sample.travel_time,
                    f"arrived_{i}": sample.arrived}
+    _check_space(d, sum(a.nbytes for a in (*leaves.values(), *arrays.values())))
+    save_checkpoint(d / "state", leaves)
     write_npz(d / "sumo_days.npz", **arrays)
     write_json(d / "meta.json", asdict(meta))
     for old in (folder / CKPT_DIR).glob("round_*"):
         if old != d:
             shutil.rmtree(old, ignore_errors=True)
+
+
+def _check_space(d: Path, nbytes: int) -> None:
+    """Raise ENOSPC before writing a checkpoint that cannot fit (orbax would fail in its writer
+    threads, with a traceback per array); the previous checkpoint is still complete."""
+    free = shutil.disk_usage(d).free
+    need = nbytes + (4 << 20)  # metadata and a margin
+    if free < need:
+        raise OSError(errno.ENOSPC, f"No space left on device: the round checkpoint needs about "
+                      f"{need / 2**20:.1f} MiB, {free / 2**20:.1f} MiB are free", str(d))
 
 
 def restore_round(folder: Path, target: Any, seeds: Sequence[int]

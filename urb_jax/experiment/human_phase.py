@@ -13,11 +13,17 @@ simulation); later calls go to the wrapped day function.
   state + calibration days); `reuse_human_phase` replays the recorded human days through
   `train_humans`, checks the replayed human state against the saved one, and takes the
   calibration days from the file.
+
+A run's own human phase is journaled (`journal`): its SUMO days are also kept on disk in the run's
+first folder, so a run stopped before its first checkpoint resumes by simulating the phase again
+with every day already done read back (SUMO days are deterministic: the same records). The
+journal goes when every folder of the run is done (`drop_journal`).
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,11 +42,13 @@ from urb_jax.experiment.protocol import DayFn, train_humans
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.humans import HumanState
 from urb_jax.reporting.records import DayRecord, read_records
-from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult
+from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, MemoExecutor
 from urb_jax.surrogate import build_static, init_params
 from urb_jax.surrogate.data import make_choices
 
 HUMAN_FILE = "human_phase.npz"
+JOURNAL_DIR = "human_days.journal"  # in the run's first folder
+JOURNAL_KEY = "human_days_journal"  # exp_config.json: the folder that holds the journal
 # exp_config keys that must agree for the human phase to be the same.
 MUST_MATCH = ("network", "env_seed", "human_model", "human_alpha", "human_beta", "human_beta_randomness",
               "human_deterministic", "gamma_c", "gamma_u", "epsilon", "delta", "routerl_literal",
@@ -91,6 +99,24 @@ def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor
     return HumanPhase(humans, records, np.stack(choices).astype(np.int32),
                       np.stack([r.travel_time for r in results]).astype(np.float32),
                       np.stack([r.status == ARRIVED for r in results]))
+
+
+def journal(executor: DayExecutor, folder: Path) -> DayExecutor:
+    """`executor` with every day it runs also stored in folder/human_days.journal/, and read from
+    there when asked again (a resumed run's human phase; a repeated day of converged humans)."""
+    return MemoExecutor(executor, store_dir=folder / JOURNAL_DIR)
+
+
+def drop_journal(root: Path, config: dict[str, Any]) -> None:
+    """Remove the run's journal once every folder of the run (`run_folders`) is done."""
+    holder = config.get(JOURNAL_KEY)
+    if not holder or not (root / holder / JOURNAL_DIR).is_dir():
+        return
+    for name in config.get("run_folders", [holder]):
+        cfg = root / name / "exp_config.json"
+        if not cfg.is_file() or json.loads(cfg.read_text()).get("status") != "done":
+            return
+    shutil.rmtree(root / holder / JOURNAL_DIR, ignore_errors=True)
 
 
 def save_human_phase(folder: Path, human: HumanPhase) -> None:

@@ -21,17 +21,21 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from urb_jax import __version__
-from urb_jax.algorithms.baselines import make_baseline
+from urb_jax.algorithms.baselines import CavPolicy, make_baseline
 from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.demand import scale_demand
 from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.configio import to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
+from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import (
+    JOURNAL_KEY,
     HumanPhase,
+    drop_journal,
+    journal,
     load_replay,
     reuse_human_phase,
     run_human_phase,
@@ -107,6 +111,50 @@ def _scenario(net: str, networks_dir: str | None, env_seed: int, env: EnvConfig,
                         jitter_s=task.demand_jitter_s)
 
 
+def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: bool) -> None:
+    """Refuse, before any SUMO day, a task whose URB metrics could not exist: no human day (t_pre),
+    no test day (t_CAV, t_test, WR), or, for training, no CAV to train."""
+    where = f"task config {task_path}"
+    if task.human_learning_episodes < 1:
+        raise ConfigError(f"{where}: key 'human_learning_episodes' is 0, but t_pre is measured on the "
+                          "last human days. Fix: set it to 1 or more (200 in URB's configs).")
+    if task.test_eps < 1:
+        raise ConfigError(f"{where}: key 'test_eps' is 0, but t_CAV, t_test and the win rate are measured "
+                          "on test days. Fix: set it to 1 or more (100 in URB's configs).")
+    if train and int(n_agents * task.ratio_machines) == 0:
+        raise ConfigError(
+            f"{where}: key 'ratio_machines' {task.ratio_machines} makes 0 of the {n_agents} agents CAVs, "
+            "so there is nothing to train. Fix: set ratio_machines so that at least one agent is a CAV "
+            f"(0.4 in URB's config1), or run the humans-only experiment with `urb-jax baseline "
+            f"--task-conf {task_path}` (every day in SUMO).")
+
+
+@contextlib.contextmanager
+def _stops_cleanly(folders: list[Path], resumable: bool = True) -> Iterator[None]:
+    """Ctrl-C and a full disk end a train run with the message that says what is kept and how to
+    go on (`urb-jax train --resume`), instead of a traceback; the executor is closed by then."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        raise InterruptedRunError(f"stopped by Ctrl-C. {_resume_hint(folders, resumable)}") from None
+    except Exception as exc:  # orbax and pyarrow wrap the OS error in their own types
+        if not no_space(exc):
+            raise
+        raise disk_full(folders[0].parent, f"({exc}) {_resume_hint(folders, resumable)}") from None
+
+
+def _resume_hint(folders: list[Path], resumable: bool) -> str:
+    """What a stopped run keeps and the command that continues it."""
+    if not resumable:
+        return (f"{folders[0]} is unfinished (a baseline run does not resume). Run the same command "
+                "with --overwrite to start it again.")
+    kept = latest_checkpoint(folders[0])
+    done = (f"Its last complete checkpoint (round {kept[0]}) is kept" if kept else
+            "It had no checkpoint yet; the SUMO days of its human phase are kept")
+    return (f"{done}. Continue with: urb-jax train --resume {folders[0].name} "
+            f"--results-dir {folders[0].parent}")
+
+
 def make_executor(hyb: HybridConfig, log_dir: Path, kind: str = "pool",
                   ray_address: str | None = None) -> DayExecutor:
     """Where a train run's SUMO days run: `ray` actors, or local processes (`pool`; in-process for
@@ -152,6 +200,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
         "train_days": train_days, "executor": executor_kind, "ray_address": ray_address}
     t0 = time.perf_counter()
     setup = load_setup(args)
+    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True)
     config = _train_config(setup, args, human_phase_from)
     human = None  # checked before any results folder is created
     if human_phase_from:
@@ -160,14 +209,33 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     base = exp_id or f"{alg}_{mode}_{Path(net).name}_{setup.task_path.stem}"
     folders = {s: create_results_dir(results_dir, exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}",
                                      overwrite) for s in seeds}
-    with _executor(executor, setup.hyb, folders[seeds[0]], executor_kind, ray_address) as ex:
+    configs = _seed_configs(config, args, seeds, folders, setup.hyb)
+    with _stops_cleanly(list(folders.values())), \
+            _executor(executor, setup.hyb, folders[seeds[0]], executor_kind, ray_address) as ex:
         if human is None:
-            human = _simulate_human_phase(setup, ex, env_seed, mode, progress)
+            human = _simulate_human_phase(setup, journal(ex, folders[seeds[0]]), env_seed, mode, progress)
         for folder in folders.values():
             save_human_phase(folder, human)
         t_human = time.perf_counter() - t0
-        return _train_groups(setup, args, config, seeds, folders, ex, human, t_human, progress,
+        return _train_groups(setup, args, configs, seeds, folders, ex, human, t_human, progress,
                              stop_after_round)
+
+
+def _seed_configs(config: dict[str, Any], args: TrainArgs, seeds: list[int], folders: dict[int, Path],
+                  hyb: HybridConfig) -> dict[int, dict[str, Any]]:
+    """Each seed's exp_config.json, written before the first SUMO day so that a run stopped at any
+    instant is a urb-jax run that `--resume` continues (and `--overwrite` may replace)."""
+    size = max(1, hyb.max_vmapped_seeds)
+    groups = [seeds[i:i + size] for i in range(0, len(seeds), size)]
+    everyone = [folders[s].name for s in seeds]
+    configs = {}
+    for group in groups:
+        for s in group:
+            configs[s] = {**config, "seed": s, "train_args": args | {"seed": s},
+                          "group": [folders[g].name for g in group], "seeds_together": len(group),
+                          "run_folders": everyone, JOURNAL_KEY: folders[seeds[0]].name}
+            write_config(folders[s], configs[s])
+    return configs
 
 
 def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
@@ -189,21 +257,35 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
         for f in folders:
             remove_parts(f)  # a kill after the last exp_config write left them
         raise UrbJaxError(f"{folder}: this run is already complete.")
-    if latest_checkpoint(folders[0]) is None:
-        raise UrbJaxError(f"{folders[0]}: no complete checkpoint to resume from (the run was stopped "
-                          "before its first round ended). Fix: start it again with --overwrite.")
     args: TrainArgs = configs[0]["train_args"]
     seeds = [c["train_args"]["seed"] for c in configs]
     setup = load_setup(args)
-    with _executor(executor, setup.hyb, folders[0], executor_kind or args.get("executor", "pool"),
-                   ray_address or args.get("ray_address")) as ex:
+    with _stops_cleanly(folders), \
+            _executor(executor, setup.hyb, folders[0], executor_kind or args.get("executor", "pool"),
+                      ray_address or args.get("ray_address")) as ex:
         t0 = time.perf_counter()
-        result = _train(setup, args, seeds, folders, ex, None, progress, None)
+        human = None
+        if latest_checkpoint(folders[0]) is None:  # stopped before round 0's checkpoint: start over,
+            human = _human_phase_again(setup, args, configs[0], Path(results_dir), ex, progress)
+            for f in folders:                      # the SUMO days done so far come from the journal
+                save_human_phase(f, human)
+        result = _train(setup, args, seeds, folders, ex, human, progress, None)
     wall = time.perf_counter() - t0
     for c in configs:
         c["resumed"] = c.get("resumed", 0) + 1
     walls = [wall + c.get("wall_time_s", 0.0) for c in configs]  # the killed runs' time included
     return _finish_group(folders, configs, result, setup.task, walls)
+
+
+def _human_phase_again(setup: TrainSetup, args: TrainArgs, config: dict[str, Any], results_dir: Path,
+                       executor: DayExecutor, progress: bool) -> HumanPhase:
+    """The human phase of a run resumed before its first checkpoint: replayed from the run it
+    reuses, or simulated again with the days already done read back from the run's journal."""
+    if config.get("human_phase_from"):
+        return reuse_human_phase(results_dir / config["human_phase_from"], config, setup.scn, setup.task,
+                                 setup.hyb, args["env_seed"], calibrate=args["mode"] != "sumo")
+    holder = results_dir / config.get(JOURNAL_KEY, config["group"][0])
+    return _simulate_human_phase(setup, journal(executor, holder), args["env_seed"], args["mode"], progress)
 
 
 def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | None) -> dict[str, Any]:
@@ -231,7 +313,7 @@ def _simulate_human_phase(setup: TrainSetup, executor: DayExecutor, env_seed: in
     return human
 
 
-def _train_groups(setup: TrainSetup, args: TrainArgs, config: dict[str, Any], seeds: list[int],
+def _train_groups(setup: TrainSetup, args: TrainArgs, configs: dict[int, dict[str, Any]], seeds: list[int],
                   folders: dict[int, Path], executor: DayExecutor, human: HumanPhase, t_human: float,
                   progress: bool, stop_after_round: int | None) -> list[RunResult]:
     """The seeds in groups of up to `max_vmapped_seeds`, one group after another; the first
@@ -240,16 +322,15 @@ def _train_groups(setup: TrainSetup, args: TrainArgs, config: dict[str, Any], se
     outs: list[RunResult] = []
     for gi, first in enumerate(range(0, len(seeds), size)):
         group = seeds[first:first + size]
-        configs = [{**config, "seed": s, "train_args": args | {"seed": s},
-                    "group": [folders[g].name for g in group], "seeds_together": len(group),
-                    "human_phase_s": round(t_human, 2)} for s in group]
-        for s, c in zip(group, configs, strict=True):
-            write_config(folders[s], c)
+        for s in group:
+            configs[s]["human_phase_s"] = round(t_human, 2)
+            write_config(folders[s], configs[s])
         ts = time.perf_counter()
         result = _train(setup, args, group, [folders[s] for s in group], executor, human, progress,
                         stop_after_round)
         wall = time.perf_counter() - ts + (t_human if gi == 0 else 0.0)
-        outs += _finish_group([folders[s] for s in group], configs, result, setup.task, [wall] * len(group))
+        outs += _finish_group([folders[s] for s in group], [configs[s] for s in group], result, setup.task,
+                              [wall] * len(group))
     return outs
 
 
@@ -285,6 +366,7 @@ def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H
     mark_done(folder, config, wall_time_s=round(wall, 2), training_days=T, sumo_training_days=T,
               surrogate_training_days=summary.surrogate_days, rounds=summary.n_rounds,
               alg_config_values=summary.alg_config, aon_same_humans=summary.aon_same_humans)
+    drop_journal(folder.parent, config)
     return RunResult(folder, metrics, wall, summary=summary)
 
 
@@ -302,12 +384,22 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
         task = dataclasses.replace(task, **task_overrides)
     env, env_path = load_env_config(env_conf)
     policy = make_baseline(model)
+    check_runnable(task, task_path, 0, train=False)
     exp_id = exp_id or f"{model}_{Path(net).name}_{task_path.stem}_s{env_seed}"
-    folder = create_results_dir(results_dir, exp_id, overwrite)
     t0 = time.perf_counter()
-    scn = _scenario(net, networks_dir, env_seed, env, task)
+    scn = _scenario(net, networks_dir, env_seed, env, task)  # a network error leaves no folder behind
+    folder = create_results_dir(results_dir, exp_id, overwrite)
     config = _baseline_config(scn, task, task_path, env, env_path, env_seed, model, human_phase_from)
     write_config(folder, config)
+    with _stops_cleanly([folder], resumable=False):
+        return _run_baseline_days(folder, config, scn, task, env, policy, env_seed, day_fn, results_dir,
+                                  human_phase_from, progress, t0)
+
+
+def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task: TaskConfig,
+                       env: EnvConfig, policy: CavPolicy, env_seed: int, day_fn: DayFn | None,
+                       results_dir: str, human_phase_from: str | None, progress: bool,
+                       t0: float) -> RunResult:
     writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
     if day_fn is None:  # SUMO's warnings go to the run's sumo.log, not the terminal
         day_fn = functools.partial(run_day, log_file=folder / "sumo.log")

@@ -165,6 +165,7 @@ class HybridTrainer:
         g = self.g
         state = self.fresh_state()
         for writer in self.writers:
+            writer.truncate(0)  # a run restarted before its first checkpoint writes its parts again
             for rec in human.records:
                 writer.add(rec)
         sample0 = SumoSample(human.calib_choices, human.calib_times, human.calib_arrived)
