@@ -255,7 +255,7 @@ class RayExecutor:
             except ray.exceptions.RayError as exc:
                 out[s.index] = self._failed(s, f"{who} failed: {_first_line(exc)}")
             else:  # an actor's own error text already ends with its log tail
-                out[s.index] = res if kind == "ok" else Failed(f"{who} raised:\n{res}")
+                out[s.index] = res if kind == "ok" else Failed(f"{who} raised:\n{res}", self._where(s))
             s.ref = None
         return out
 
@@ -264,7 +264,8 @@ class RayExecutor:
                                "day limit")
 
     def _failed(self, s: _Slot, reason: str) -> Failed:
-        return Failed(f"{reason}\n--- SUMO log tail ({self._where(s)}) ---\n{log_tail(s.log_path)}")
+        where = self._where(s)
+        return Failed(f"{reason}\n--- SUMO log tail ({where}) ---\n{log_tail(s.log_path)}", where)
 
     def close(self) -> None:
         ray = self._ray

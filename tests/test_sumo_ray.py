@@ -3,6 +3,7 @@ through the object store, a killed actor replaced with its day retried, failures
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import sys
@@ -91,7 +92,7 @@ def test_network_file_travels_through_the_object_store(rex, grid_scenario, days,
     assert all(a.same_as(b) for a, b in zip(out, ref[:2], strict=True))
 
 
-def test_killed_actor_is_replaced_and_its_day_repeated(rex, grid_scenario, days):
+def test_killed_actor_is_replaced_and_its_day_repeated(rex, grid_scenario, days, caplog):
     choices, seeds, ref = days
     restarts = rex.restarts
     killed: list[int] = []
@@ -108,10 +109,15 @@ def test_killed_actor_is_replaced_and_its_day_repeated(rex, grid_scenario, days)
 
     th = threading.Thread(target=killer)
     th.start()
-    out = rex.run_days(grid_scenario, choices, seeds)
+    with caplog.at_level(logging.WARNING, logger="urb_jax"):
+        out = rex.run_days(grid_scenario, choices, seeds)
     th.join()
     assert killed and rex.restarts == restarts + 1
     assert killed[0] not in [s.pid for s in rex.slots]
+    # one warning for the one restart, naming the actor and its SUMO log
+    (warning,) = [r.getMessage() for r in caplog.records if r.name.startswith("urb_jax")
+                  and r.levelno >= logging.WARNING]
+    assert f"(pid {killed[0]}) died" in warning and "restarting it" in warning and "sumo_actor" in warning
     assert all(a.same_as(b) for a, b in zip(out, ref, strict=True))
     # the replacement removes the killed actor's /dev/shm files (asynchronously)
     base = Path(rex.config.shm_dir)
