@@ -51,6 +51,7 @@ from urb_jax.experiment.run_folder import (
     write_outputs,
     write_rounds,
 )
+from urb_jax.experiment.run_log import log_run_to, with_run_log
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.reporting.records import RecordsWriter, remove_parts
 from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoPool, run_day
@@ -133,6 +134,7 @@ def _executor(given: DayExecutor | None, hyb: HybridConfig, log_dir: Path, kind:
         executor.close()
 
 
+@with_run_log
 def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "config1",
               alg_conf: str = "config1", env_conf: str = "config1", hybrid_conf: str = "default",
               env_seed: int = 42, seeds: list[int] | None = None, exp_id: str | None = None,
@@ -160,6 +162,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     base = exp_id or f"{alg}_{mode}_{Path(net).name}_{setup.task_path.stem}"
     folders = {s: create_results_dir(results_dir, exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}",
                                      overwrite) for s in seeds}
+    log_run_to(folders[seeds[0]])  # beside the SUMO logs (the executor's log_dir)
     with _executor(executor, setup.hyb, folders[seeds[0]], executor_kind, ray_address) as ex:
         if human is None:
             human = _simulate_human_phase(setup, ex, env_seed, mode, progress)
@@ -170,6 +173,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
                              stop_after_round)
 
 
+@with_run_log
 def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
                  executor: DayExecutor | None = None, executor_kind: str | None = None,
                  ray_address: str | None = None) -> list[RunResult]:
@@ -184,6 +188,7 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
     folders = [Path(results_dir) / name for name in config.get("group", [exp_id])]
     for f in folders:
         lock_run(f)
+    log_run_to(folders[0])
     configs = [json.loads((f / CONFIG_FILE).read_text()) for f in folders]
     if all(c.get("status") == "done" for c in configs):
         for f in folders:
@@ -288,6 +293,7 @@ def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H
     return RunResult(folder, metrics, wall, summary=summary)
 
 
+@with_run_log
 def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str = "config1",
                  env_conf: str = "config1", env_seed: int = 42, exp_id: str | None = None,
                  networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
@@ -304,6 +310,7 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     policy = make_baseline(model)
     exp_id = exp_id or f"{model}_{Path(net).name}_{task_path.stem}_s{env_seed}"
     folder = create_results_dir(results_dir, exp_id, overwrite)
+    log_run_to(folder)
     t0 = time.perf_counter()
     scn = _scenario(net, networks_dir, env_seed, env, task)
     config = _baseline_config(scn, task, task_path, env, env_path, env_seed, model, human_phase_from)
