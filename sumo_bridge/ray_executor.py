@@ -67,10 +67,10 @@ class SumoActor:
         self.files = Path(tempfile.mkdtemp(prefix=f"urbjax-ray-{os.getpid()}-", dir=_shm_base(config)))
         try:  # same path as on the driver when the node shares it (local Ray), else a local temp file
             Path(log_path).parent.mkdir(parents=True, exist_ok=True)
-            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o666)
         except OSError:
             log_path = str(self.files / Path(log_path).name)
-            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o666)
         self.log_path = log_path
         os.dup2(fd, 1)  # SUMO's messages (C-level stdout/stderr) go to this actor's log for good
         os.dup2(fd, 2)
