@@ -16,10 +16,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import glob
+import ipaddress
 import logging
 import os
 import shutil
 import signal
+import sys
 import tempfile
 import traceback
 from pathlib import Path
@@ -42,6 +44,9 @@ if TYPE_CHECKING:  # Ray is optional: its types only for annotations
     from ray.actor import ActorHandle
 
 INSTALL_HINT = "pip install 'urb-jax[ray]'"
+# Ray's switch for a single-node Ray (its default on macOS and Windows): the node's IP is 127.0.0.1
+SINGLE_NODE_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+log = logging.getLogger(__name__)
 
 
 def import_ray() -> ModuleType:
@@ -52,6 +57,18 @@ def import_ray() -> ModuleType:
         raise UrbJaxError(f"--executor ray needs Ray, which is not installed ({exc}). Fix: {INSTALL_HINT}"
                           ) from exc
     return ray
+
+
+def loopback_only_ray() -> None:
+    """Make the Ray this process is about to start listen on 127.0.0.1 only.
+
+    Ray binds its servers (GCS, raylet, object manager, workers, agents, metrics) to the node's
+    IP, and to every interface when that IP is not a loopback one; `ray.init(_node_ip_address=
+    "127.0.0.1")` is replaced by the machine's outward IP. Ray's single-node switch makes the node
+    IP 127.0.0.1. Ray reads it when it is imported, so it has to be set before (and it stays set
+    for this process: a driver that later joins a cluster must be another process)."""
+    if "ray" not in sys.modules:
+        os.environ.setdefault(SINGLE_NODE_ENV, "0")
 
 
 def _shm_base(config: SumoConfig) -> str:
@@ -153,6 +170,8 @@ class RayExecutor:
                  runtime_env: dict | None = None, actor_cpus: float = 1.0) -> None:
         if n_actors < 1:
             raise ValueError("RayExecutor needs n_actors >= 1")
+        if address is None:
+            loopback_only_ray()
         ray = import_ray()
         self._ray = ray
         self.config = config or SumoConfig()
@@ -164,7 +183,8 @@ class RayExecutor:
             if address is None:
                 # "local": a new instance even if RAY_ADDRESS or a `ray start` cluster exists
                 ray.init(address="local", num_cpus=num_cpus or n_actors, include_dashboard=False,
-                         runtime_env=runtime_env, logging_level=logging.WARNING)
+                         dashboard_host="127.0.0.1", runtime_env=runtime_env, logging_level=logging.WARNING)
+                _check_loopback(ray.util.get_node_ip_address())
             else:
                 ray.init(address=address, runtime_env=runtime_env)
         extra = {}
@@ -288,6 +308,14 @@ class RayExecutor:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _check_loopback(node_ip: str) -> None:
+    """Say so when a local Ray could not be kept on the loopback interface."""
+    if not ipaddress.ip_address(node_ip).is_loopback:
+        log.warning("the local Ray listens on %s, not only on 127.0.0.1 (ray was imported before the "
+                    "RayExecutor was built, or %s is set to 1). Fix: set %s=0 before ray is imported, "
+                    "or use --executor pool.", node_ip, SINGLE_NODE_ENV, SINGLE_NODE_ENV)
 
 
 def _first_line(exc: BaseException) -> str:
