@@ -171,7 +171,7 @@ class _Run(Generic[S]):
         s.task = None
         attempts = self.failures.setdefault(tid, [])
         attempts.append(failed.text)
-        log.warning("SUMO %s; restarting it (day %d, seed %s, network %s%s: %s; SUMO log %s)",
+        log.warning("SUMO %s; restarting it (day %d of the batch, seed %s, network %s%s: %s; SUMO log %s)",
                     failed.reason(), tid, self.batch.seeds[tid], self.scenario.name, self.where,
                     "retrying the day" if len(attempts) < 2 else "the day failed twice",
                     failed.log or "(none)")
