@@ -12,6 +12,7 @@ keep days on disk across runs. Keys: `keys.day_key`; files: `store_dir/<net>-<sc
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import zipfile
 from pathlib import Path
@@ -24,6 +25,8 @@ from urb_jax.sumo_bridge.batch import as_batch
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.sumo_bridge.keys import day_key, scenario_key
 from urb_jax.sumo_bridge.types import DayExecutor, DayResult
+
+log = logging.getLogger(__name__)
 
 # what np.load and DayResult(**fields) raise on a truncated, foreign or outdated file
 _DAMAGED = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
@@ -78,7 +81,9 @@ class MemoExecutor:
             return False
         try:
             self.cache[key] = load_day(path)
-        except _DAMAGED:  # a damaged entry: run the day again (and rewrite it)
+        except _DAMAGED as exc:  # a damaged entry: run the day again (and rewrite it)
+            log.warning("SUMO day cache entry %s is unreadable (%s): re-running the day and rewriting it",
+                        path, _first_line(exc))
             return False
         return True
 
@@ -94,6 +99,10 @@ class MemoExecutor:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
 
 
 def save_day(path: str | os.PathLike, day: DayResult) -> None:

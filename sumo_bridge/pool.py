@@ -180,4 +180,4 @@ class SumoPool:
 
 
 def _failed(w: _Worker, reason: str) -> Failed:
-    return Failed(f"{reason}\n--- SUMO log tail ({w.log_path}) ---\n{log_tail(w.log_path)}")
+    return Failed(f"{reason}\n--- SUMO log tail ({w.log_path}) ---\n{log_tail(w.log_path)}", str(w.log_path))

@@ -16,10 +16,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import glob
+import ipaddress
 import logging
 import os
 import shutil
 import signal
+import sys
 import tempfile
 import traceback
 from pathlib import Path
@@ -42,6 +44,9 @@ if TYPE_CHECKING:  # Ray is optional: its types only for annotations
     from ray.actor import ActorHandle
 
 INSTALL_HINT = "pip install 'urb-jax[ray]'"
+# Ray's switch for a single-node Ray (its default on macOS and Windows): the node's IP is 127.0.0.1
+SINGLE_NODE_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+log = logging.getLogger(__name__)
 
 
 def import_ray() -> ModuleType:
@@ -52,6 +57,18 @@ def import_ray() -> ModuleType:
         raise UrbJaxError(f"--executor ray needs Ray, which is not installed ({exc}). Fix: {INSTALL_HINT}"
                           ) from exc
     return ray
+
+
+def loopback_only_ray() -> None:
+    """Make the Ray this process is about to start listen on 127.0.0.1 only.
+
+    Ray binds its servers (GCS, raylet, object manager, workers, agents, metrics) to the node's
+    IP, and to every interface when that IP is not a loopback one; `ray.init(_node_ip_address=
+    "127.0.0.1")` is replaced by the machine's outward IP. Ray's single-node switch makes the node
+    IP 127.0.0.1. Ray reads it when it is imported, so it has to be set before (and it stays set
+    for this process: a driver that later joins a cluster must be another process)."""
+    if "ray" not in sys.modules:
+        os.environ.setdefault(SINGLE_NODE_ENV, "0")
 
 
 def _shm_base(config: SumoConfig) -> str:
@@ -67,10 +84,10 @@ class SumoActor:
         self.files = Path(tempfile.mkdtemp(prefix=f"urbjax-ray-{os.getpid()}-", dir=_shm_base(config)))
         try:  # same path as on the driver when the node shares it (local Ray), else a local temp file
             Path(log_path).parent.mkdir(parents=True, exist_ok=True)
-            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o666)
         except OSError:
             log_path = str(self.files / Path(log_path).name)
-            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o666)
         self.log_path = log_path
         os.dup2(fd, 1)  # SUMO's messages (C-level stdout/stderr) go to this actor's log for good
         os.dup2(fd, 2)
@@ -153,6 +170,8 @@ class RayExecutor:
                  runtime_env: dict | None = None, actor_cpus: float = 1.0) -> None:
         if n_actors < 1:
             raise ValueError("RayExecutor needs n_actors >= 1")
+        if address is None:
+            loopback_only_ray()
         ray = import_ray()
         self._ray = ray
         self.config = config or SumoConfig()
@@ -164,7 +183,8 @@ class RayExecutor:
             if address is None:
                 # "local": a new instance even if RAY_ADDRESS or a `ray start` cluster exists
                 ray.init(address="local", num_cpus=num_cpus or n_actors, include_dashboard=False,
-                         runtime_env=runtime_env, logging_level=logging.WARNING)
+                         dashboard_host="127.0.0.1", runtime_env=runtime_env, logging_level=logging.WARNING)
+                _check_loopback(ray.util.get_node_ip_address())
             else:
                 ray.init(address=address, runtime_env=runtime_env)
         extra = {}
@@ -255,7 +275,7 @@ class RayExecutor:
             except ray.exceptions.RayError as exc:
                 out[s.index] = self._failed(s, f"{who} failed: {_first_line(exc)}")
             else:  # an actor's own error text already ends with its log tail
-                out[s.index] = res if kind == "ok" else Failed(f"{who} raised:\n{res}")
+                out[s.index] = res if kind == "ok" else Failed(f"{who} raised:\n{res}", self._where(s))
             s.ref = None
         return out
 
@@ -264,7 +284,8 @@ class RayExecutor:
                                "day limit")
 
     def _failed(self, s: _Slot, reason: str) -> Failed:
-        return Failed(f"{reason}\n--- SUMO log tail ({self._where(s)}) ---\n{log_tail(s.log_path)}")
+        where = self._where(s)
+        return Failed(f"{reason}\n--- SUMO log tail ({where}) ---\n{log_tail(s.log_path)}", where)
 
     def close(self) -> None:
         ray = self._ray
@@ -288,6 +309,14 @@ class RayExecutor:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _check_loopback(node_ip: str) -> None:
+    """Say so when a local Ray could not be kept on the loopback interface."""
+    if not ipaddress.ip_address(node_ip).is_loopback:
+        log.warning("the local Ray listens on %s, not only on 127.0.0.1 (ray was imported before the "
+                    "RayExecutor was built, or %s is set to 1). Fix: set %s=0 before ray is imported, "
+                    "or use --executor pool.", node_ip, SINGLE_NODE_ENV, SINGLE_NODE_ENV)
 
 
 def _first_line(exc: BaseException) -> str:

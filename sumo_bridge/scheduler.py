@@ -11,6 +11,7 @@ busy workers at once). A backend supplies only submit / wait / overdue / restart
 
 from __future__ import annotations
 
+import logging
 import time
 from collections import deque
 from typing import Generic, NamedTuple, Protocol, TypeVar
@@ -22,6 +23,8 @@ from urb_jax.core.errors import UrbJaxError
 from urb_jax.sumo_bridge.batch import DayBatch, as_batch, check_batch
 from urb_jax.sumo_bridge.keys import scenario_key
 from urb_jax.sumo_bridge.types import DayResult
+
+log = logging.getLogger(__name__)
 
 
 class SumoDayError(UrbJaxError):
@@ -58,9 +61,20 @@ class DayJob(NamedTuple):
 
 
 class Failed(NamedTuple):
-    """A failed attempt: the reason and the worker's SUMO log tail, as the error will quote it."""
+    """A failed attempt: the reason and the worker's SUMO log tail, as the error will quote it, and
+    where that log is (the restart warning names it, so the log can be found without the error)."""
 
     text: str
+    log: str = ""
+
+    def reason(self) -> str:
+        """The reason in one line: its first line, plus the exception's line when the worker raised."""
+        head = self.text.split("\n--- SUMO log tail", 1)[0]
+        lines = [ln.strip() for ln in head.splitlines() if ln.strip()] or ["(no reason given)"]
+        first = lines[0]
+        if first.endswith(":") and len(lines) > 1:  # "worker 0 raised:" + a traceback
+            first = f"{first} {lines[-1]}"
+        return first[:300]
 
 
 S = TypeVar("S", bound=Slot)
@@ -160,6 +174,10 @@ class _Run(Generic[S]):
         s.task = None
         attempts = self.failures.setdefault(tid, [])
         attempts.append(failed.text)
+        log.warning("SUMO %s; restarting it (day %d of the batch, seed %s, network %s%s: %s; SUMO log %s)",
+                    failed.reason(), tid, self.batch.seeds[tid], self.scenario.name, self.where,
+                    "retrying the day" if len(attempts) < 2 else "the day failed twice",
+                    failed.log or "(none)")
         self.w.restart(s)
         if len(attempts) >= 2:
             for other in list(self.w.slots):  # abandon the days in flight, keep the executor usable

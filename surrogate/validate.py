@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -11,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
+from urb_jax.core.atomic import write_json, write_npz, write_text
 from urb_jax.surrogate.calibrate import FitConfig, SumoSample, calibrate
 from urb_jax.surrogate.data import make_choices
 from urb_jax.surrogate.model import SurrogateConfig, build_static, init_params, predict_jit
@@ -115,7 +115,7 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     t0 = time.perf_counter()
     params = calibrate(scn, tr, config=config, fit=fit, static=static)
     t_fit = time.perf_counter() - t0
-    np.savez(out_dir / "params.npz", **{k: np.asarray(v) for k, v in params.items()})
+    write_npz(out_dir / "params.npz", **{k: np.asarray(v) for k, v in params.items()})
 
     pred0 = np.asarray(predict_jit(p0, static, jnp.asarray(c_te)))
     pred = np.asarray(predict_jit(params, static, jnp.asarray(c_te)))
@@ -194,9 +194,9 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     metrics["setup"] = {"network": scn.name, "agents": scn.n_agents, "edges": scn.n_edges,
                         "sumo_backend": backend_name(), "validation": asdict(vcfg), "model": asdict(config),
                         "fit": asdict(fit), "test_kinds": kinds, "deviation_days": len(dev)}
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_json(out_dir / "metrics.json", metrics)
     _plots(out_dir, pred, te, dep, ratio)
-    (out_dir / "report.md").write_text(_report(metrics))
+    write_text(out_dir / "report.md", _report(metrics))
     return metrics
 
 

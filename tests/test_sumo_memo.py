@@ -4,6 +4,7 @@ SumoConfig) is simulated once, kept in memory and optionally on disk; damaged fi
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -95,7 +96,8 @@ def test_scenario_key_is_content_not_path(grid_scenario, tmp_path):
     assert scenario_key(dataclasses.replace(grid_scenario, agent_depart=later)) != key
 
 
-def test_disk_store_serves_a_new_executor_and_reruns_damaged_entries(grid_scenario, two_choices, tmp_path):
+def test_disk_store_serves_a_new_executor_and_reruns_damaged_entries(grid_scenario, two_choices, tmp_path,
+                                                                    caplog):
     a, b = two_choices
     first = MemoExecutor(CountingExecutor(), store_dir=tmp_path)
     ran = first.run_days(grid_scenario, np.stack([a, b]), [42, 42])
@@ -106,8 +108,11 @@ def test_disk_store_serves_a_new_executor_and_reruns_damaged_entries(grid_scenar
     assert inner.days == [] and again[0].same_as(ran[1]) and again[1].same_as(ran[0])
     files[0].write_bytes(b"not an npz")  # damaged: run that day again and rewrite it
     third = MemoExecutor(inner, store_dir=tmp_path)
-    third.run_days(grid_scenario, np.stack([a, b]), [42, 42])
-    assert (third.simulated, third.reused) == (1, 1)
+    with caplog.at_level(logging.WARNING, logger="urb_jax"):
+        third.run_days(grid_scenario, np.stack([a, b, a, b]), [42] * 4)  # the damaged day twice: one warning
+    assert (third.simulated, third.reused) == (1, 3)
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert str(files[0]) in warning and "re-running" in warning
     load_day(files[0])  # readable again
 
 

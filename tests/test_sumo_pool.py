@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import threading
@@ -45,10 +46,11 @@ def test_pool_preserves_order_and_matches_in_process_runs(pool, grid_scenario, d
     assert all(a.same_as(b) for a, b in zip(back, ref[::-1], strict=True))
 
 
-def test_worker_killed_mid_day_is_restarted_and_day_repeated(pool, grid_scenario, days):
+def test_worker_killed_mid_day_is_restarted_and_day_repeated(pool, grid_scenario, days, caplog):
     choices, seeds, ref = days
     restarts = pool.restarts
     killed: list[int] = []
+    index = {w.proc.pid: w.index for w in pool.slots}
 
     def killer() -> None:
         deadline = time.monotonic() + 60
@@ -62,9 +64,15 @@ def test_worker_killed_mid_day_is_restarted_and_day_repeated(pool, grid_scenario
 
     th = threading.Thread(target=killer)
     th.start()
-    out = pool.run_days(grid_scenario, choices, seeds)
+    with caplog.at_level(logging.WARNING, logger="urb_jax"):
+        out = pool.run_days(grid_scenario, choices, seeds)
     th.join()
     assert killed and pool.restarts == restarts + 1
+    # one warning for the one restart, naming the worker, its day and its SUMO log
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    i = index[killed[0]]
+    assert f"SUMO worker {i} died" in warning and "restarting it" in warning and "retrying the day" in warning
+    assert "day " in warning and str(pool.log_dir / f"sumo_worker{i}.log") in warning
     assert all(a.same_as(b) for a, b in zip(out, ref, strict=True))
     assert all(w.proc.is_alive() for w in pool.slots)
     assert not list(Path(pool.slots[0].shm_dir).glob(f"urbjax-sumo-{killed[0]}-*"))  # files cleaned

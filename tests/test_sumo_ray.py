@@ -3,6 +3,7 @@ through the object store, a killed actor replaced with its day retried, failures
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import sys
@@ -91,7 +92,7 @@ def test_network_file_travels_through_the_object_store(rex, grid_scenario, days,
     assert all(a.same_as(b) for a, b in zip(out, ref[:2], strict=True))
 
 
-def test_killed_actor_is_replaced_and_its_day_repeated(rex, grid_scenario, days):
+def test_killed_actor_is_replaced_and_its_day_repeated(rex, grid_scenario, days, caplog):
     choices, seeds, ref = days
     restarts = rex.restarts
     killed: list[int] = []
@@ -108,10 +109,15 @@ def test_killed_actor_is_replaced_and_its_day_repeated(rex, grid_scenario, days)
 
     th = threading.Thread(target=killer)
     th.start()
-    out = rex.run_days(grid_scenario, choices, seeds)
+    with caplog.at_level(logging.WARNING, logger="urb_jax"):
+        out = rex.run_days(grid_scenario, choices, seeds)
     th.join()
     assert killed and rex.restarts == restarts + 1
     assert killed[0] not in [s.pid for s in rex.slots]
+    # one warning for the one restart, naming the actor and its SUMO log
+    (warning,) = [r.getMessage() for r in caplog.records if r.name.startswith("urb_jax")
+                  and r.levelno >= logging.WARNING]
+    assert f"(pid {killed[0]}) died" in warning and "restarting it" in warning and "sumo_actor" in warning
     assert all(a.same_as(b) for a, b in zip(out, ref, strict=True))
     # the replacement removes the killed actor's /dev/shm files (asynchronously)
     base = Path(rex.config.shm_dir)
@@ -153,6 +159,45 @@ def test_missing_ray_gives_the_install_command(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` now raises ImportError
     with pytest.raises(UrbJaxError, match=r"pip install 'urb-jax\[ray\]'"):
         import_ray()
+
+
+LISTENERS = """
+import json, socket, sys
+import psutil
+from urb_jax.city.scenario import load_scenario
+from urb_jax.sumo_bridge.ray_executor import RayExecutor
+
+scn = load_scenario("urb_grid")
+with RayExecutor(1, log_dir=sys.argv[1]) as ex:
+    (day,) = ex.run_days(scn, scn.fft.argmin(1)[None], [1])  # the actors work on the loopback Ray
+    me = psutil.Process()
+    found = []
+    for p in [me, *me.children(recursive=True)]:  # the driver, Ray's daemons, agents and actors
+        for c in p.net_connections(kind="inet"):  # TCP listeners and bound UDP sockets
+            if c.status == psutil.CONN_LISTEN or (c.type == socket.SOCK_DGRAM and not c.raddr):
+                found.append([p.pid, p.name(), c.laddr.ip, c.laddr.port])
+print(json.dumps({"n": day.n, "found": found}))
+"""
+
+
+def test_a_local_ray_listens_on_the_loopback_interface_only(grid_scenario, tmp_path):
+    """No process of a Ray that RayExecutor starts accepts connections from other machines."""
+    pytest.importorskip("ray", reason="ray is not installed (pip install 'urb-jax[ray]')")
+    pytest.importorskip("psutil", reason="psutil lists the sockets")
+    import ipaddress
+    import json
+    import subprocess
+
+    # a fresh interpreter: this one has imported Ray already (Ray reads its single-node switch then)
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"}
+    out = subprocess.run([sys.executable, "-c", LISTENERS, str(tmp_path)], capture_output=True, text=True,
+                         timeout=300, env=env, check=True)
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["n"] == grid_scenario.n_agents
+    names = {name for _, name, _, _ in got["found"]}
+    assert "gcs_server" in names and "raylet" in names  # Ray's own servers were seen
+    wide = [f for f in got["found"] if not ipaddress.ip_address(f[2].removeprefix("::ffff:")).is_loopback]
+    assert wide == []
 
 
 TINY_IQL = {"agent_frames_per_batch": 2, "mlp_depth": 1, "mlp_cells": 16, "minibatch_size": 64}

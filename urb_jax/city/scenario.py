@@ -206,7 +206,7 @@ def load_scenario(
             # SUMO must still read the copy that was asked for, not the one that built the entry.
             return replace(_load(cache_file), net_file=str(files.net))
         except Exception as exc:  # a stale or damaged cache is rebuilt, never trusted
-            log.warning("ignoring unreadable scenario cache %s (%s)", cache_file, exc)
+            log.warning("scenario cache %s is unreadable (%s): rebuilding it", cache_file, exc)
     scn = build_scenario(files, params, env_seed, workers=workers)
     if use_cache:
         _save(scn, cache_file)

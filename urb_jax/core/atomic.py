@@ -1,8 +1,10 @@
 """The one way urb-jax writes a file: to a temporary name beside it, fsynced, then renamed.
 
 A reader (or a resumed run) therefore sees the old file or the new one, never half of either,
-also after a crash or a full disk. Files are 0644 like the rest of a results folder (mkstemp's
-default is 0600).
+also after a crash or a full disk. Files get the mode open() gives (0666 less the process's umask:
+0644 under the usual 022), like the files other libraries write into the same folders (plots,
+orbax checkpoints, logs); mkstemp's 0600 would leave records and caches unreadable to the people
+who can read the rest.
 """
 
 from __future__ import annotations
@@ -17,13 +19,27 @@ from typing import Any
 
 import numpy as np
 
-MODE = 0o644
+MODE = 0o666  # less the umask, as open() does
+
+
+def umask() -> int:
+    """The process's umask, read from /proc where Linux offers it: os.umask can only read it by
+    setting it, which races with threads creating files (orbax writes checkpoints in threads)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, mode: int = MODE) -> Iterator[Path]:
-    """Yields a temporary path beside `path` to write to; on a clean exit it is fsynced and renamed
-    onto `path`, on an exception removed."""
+    """Yields a temporary path beside `path` to write to; on a clean exit it is fsynced, given
+    `mode` less the umask, and renamed onto `path`; on an exception removed."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -33,7 +49,7 @@ def atomic_path(path: str | os.PathLike, mode: int = MODE) -> Iterator[Path]:
         yield tmp
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
-        os.chmod(tmp, mode)
+        os.chmod(tmp, mode & ~umask())
         os.replace(tmp, path)
     finally:
         with contextlib.suppress(FileNotFoundError):

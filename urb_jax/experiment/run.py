@@ -55,6 +55,7 @@ from urb_jax.experiment.run_folder import (
     write_outputs,
     write_rounds,
 )
+from urb_jax.experiment.run_log import log_run_to, with_run_log
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.reporting.records import RecordsWriter, remove_parts
 from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoPool, run_day
@@ -181,6 +182,7 @@ def _executor(given: DayExecutor | None, hyb: HybridConfig, log_dir: Path, kind:
         executor.close()
 
 
+@with_run_log
 def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "config1",
               alg_conf: str = "config1", env_conf: str = "config1", hybrid_conf: str = "default",
               env_seed: int = 42, seeds: list[int] | None = None, exp_id: str | None = None,
@@ -210,6 +212,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     folders = {s: create_results_dir(results_dir, exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}",
                                      overwrite) for s in seeds}
     configs = _seed_configs(config, args, seeds, folders, setup.hyb)
+    log_run_to(folders[seeds[0]])  # beside the SUMO logs (the executor's log_dir)
     with _stops_cleanly(list(folders.values())), \
             _executor(executor, setup.hyb, folders[seeds[0]], executor_kind, ray_address) as ex:
         if human is None:
@@ -238,6 +241,7 @@ def _seed_configs(config: dict[str, Any], args: TrainArgs, seeds: list[int], fol
     return configs
 
 
+@with_run_log
 def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
                  executor: DayExecutor | None = None, executor_kind: str | None = None,
                  ray_address: str | None = None) -> list[RunResult]:
@@ -252,6 +256,7 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
     folders = [Path(results_dir) / name for name in config.get("group", [exp_id])]
     for f in folders:
         lock_run(f)
+    log_run_to(folders[0])
     configs = [json.loads((f / CONFIG_FILE).read_text()) for f in folders]
     if all(c.get("status") == "done" for c in configs):
         for f in folders:
@@ -370,6 +375,7 @@ def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H
     return RunResult(folder, metrics, wall, summary=summary)
 
 
+@with_run_log
 def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str = "config1",
                  env_conf: str = "config1", env_seed: int = 42, exp_id: str | None = None,
                  networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
@@ -389,6 +395,7 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     t0 = time.perf_counter()
     scn = _scenario(net, networks_dir, env_seed, env, task)  # a network error leaves no folder behind
     folder = create_results_dir(results_dir, exp_id, overwrite)
+    log_run_to(folder)
     config = _baseline_config(scn, task, task_path, env, env_path, env_seed, model, human_phase_from)
     write_config(folder, config)
     with _stops_cleanly([folder], resumable=False):
