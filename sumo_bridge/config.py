@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from urb_jax.city.network import DAY_LIMIT_S
+
 STUCK_RULES = ("urb", "routerl", "sumo")
 STUCK_PENALTIES = ("elapsed", "urb")
 
@@ -31,7 +33,7 @@ class SumoConfig:
     stuck_time_s: int = 600
     stuck_penalty: str = "elapsed"
     tt_offset_s: int = 2  # RouteRL's recording delay; 0 gives SUMO's arrival - scheduled depart
-    max_sim_time_s: int = 6 * 3600  # hard cap on SUMO time per day
+    max_sim_time_s: int = DAY_LIMIT_S  # hard cap on SUMO time per day (agents.csv is checked against it)
     poll_every_s: int = 100  # how often every vehicle's waiting time is polled (exactness kept)
     additional_files: tuple[str, ...] = ()  # extra SUMO additional files (e.g. detectors, tests)
     extra_args: tuple[str, ...] = field(default=())  # appended to SUMO's command line

@@ -20,6 +20,7 @@ from urb_jax.core.errors import NetworkError
 from urb_jax.core.paths import NETWORKS_ENV, networks_search_path
 
 DEFAULT_NETWORK = "urb_grid"
+DAY_LIMIT_S = 6 * 3600  # a simulated day ends here (SumoConfig.max_sim_time_s): departures must come before
 AGENT_COLUMNS = ("id", "origin", "destination", "start_time", "kind")
 AGENT_KINDS = ("Human", "AV")
 MAX_INT = 2**31  # ids, indices and start times (seconds) are stored as int32
@@ -204,6 +205,13 @@ def read_demand(files: NetworkFiles, net: NetData | None = None) -> Demand:
     if bad.size:
         r = int(bad[0])
         raise NetworkError(files.agents, f"line {r + 2}, field 'start_time': negative time {start[r]}.")
+    late = np.flatnonzero(start >= DAY_LIMIT_S)
+    if late.size:
+        r = int(late[0])
+        raise NetworkError(
+            files.agents, f"line {r + 2}, field 'start_time': {start[r]} s is past the end of a simulated "
+            f"day ({DAY_LIMIT_S} s; {late.size} agent(s), ids {ids[late[:10]].tolist()}"
+            f"{' ...' if late.size > 10 else ''}).", f"give every agent a start_time below {DAY_LIMIT_S}.")
     for row, kind in enumerate(kinds):
         if kind not in AGENT_KINDS:
             raise NetworkError(files.agents, f"line {row + 2}, field 'kind': '{kind}' is unknown.",

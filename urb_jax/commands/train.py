@@ -27,8 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--hybrid-conf", default="default",
                         help="hybrid round/budget config id or path (configs/hybrid, default 'default')")
     parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
-    parser.add_argument("--seeds", default=None, help="comma-separated training seeds, e.g. 0,1,2 "
-                        "(trained together under vmap, sharing the human phase and SUMO pool; a folder each)")
+    parser.add_argument("--seeds", default=None, type=seed_list,
+                        help="comma-separated training seeds, e.g. 0,1,2 (trained together under vmap, "
+                             "sharing the human phase and SUMO pool; a folder each)")
     parser.add_argument("--mode", default="hybrid", choices=MODES,
                         help="hybrid (default), sumo (URB protocol: SUMO days only), "
                              "surrogate (train on the surrogate only; test on SUMO)")
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
                             executor_kind=args.executor, ray_address=args.ray_address)
     else:
-        seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else [args.seed]
+        seeds = args.seeds or [args.seed]
         outs = run_train(
             alg=args.alg, net=args.net, task_conf=args.task_conf, alg_conf=args.alg_conf,
             env_conf=args.env_conf, hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=seeds,
@@ -78,6 +79,20 @@ def run(args: argparse.Namespace) -> int:
     if line:
         print(line)
     return 0
+
+
+def seed_list(text: str) -> list[int]:
+    """--seeds: comma-separated, distinct integers (argparse turns the error into exit code 2)."""
+    try:
+        seeds = [int(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: seeds are comma-separated integers, e.g. 0,1,2"
+                                         ) from None
+    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
+    if repeated:
+        raise argparse.ArgumentTypeError(f"{text!r}: seed {repeated[0]} is given twice (each seed is one "
+                                         "results folder); e.g. 0,1,2")
+    return seeds
 
 
 def aon_t_cav(out: RunResult, key: str = "t_CAV") -> float | None:

@@ -196,6 +196,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     `human_phase_from`: reuse that earlier train run's human phase instead of simulating it."""
     seeds = seeds or [0]
     net = net or DEFAULT_NETWORK
+    task_conf, alg_conf, env_conf, hybrid_conf = map(_resolved, (task_conf, alg_conf, env_conf, hybrid_conf))
     args: TrainArgs = {
         "alg": alg, "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
         "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode, "networks_dir": networks_dir,
@@ -222,6 +223,13 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
         t_human = time.perf_counter() - t0
         return _train_groups(setup, args, configs, seeds, folders, ex, human, t_human, progress,
                              stop_after_round)
+
+
+def _resolved(config: str) -> str:
+    """A config given as a file path, made absolute (a `--resume` from another folder finds it);
+    a config id as it is."""
+    path = Path(config).expanduser()
+    return str(path.resolve()) if path.suffix == ".json" and path.is_file() else config
 
 
 def _seed_configs(config: dict[str, Any], args: TrainArgs, seeds: list[int], folders: dict[int, Path],

@@ -3,6 +3,7 @@ marked done at the end, and the finishing step that turns records into metric fi
 
 from __future__ import annotations
 
+import atexit
 import fcntl
 import logging
 import os
@@ -62,6 +63,7 @@ def lock_run(folder: Path) -> None:
     os.ftruncate(fd, 0)
     os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     _LOCKS[folder] = fd
+    atexit.register(os.ftruncate, fd, 0)  # a clean exit leaves no owner to "take over" from
 
 
 def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = False) -> Path:
