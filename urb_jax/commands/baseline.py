@@ -4,6 +4,7 @@ The run itself is `urb_jax.experiment.run.run_baseline`; this module parses and 
 from __future__ import annotations
 
 import argparse
+import json
 
 from urb_jax.commands.common import add_network_flags
 from urb_jax.experiment.run import run_baseline
@@ -38,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
     replayed = out.replayed_days
     print(f"results: {out.folder}  ({out.wall_time_s:.1f} s, {out.days - replayed} SUMO days"
           + (f" + {replayed} replayed)" if replayed else ")"))
+    no_cavs = json.loads((out.folder / "exp_config.json").read_text()).get("num_machines") == 0
     for key in ("t_pre", "t_CAV", "t_HDV_test", "winrate", "cost_of_learning", "delta_V", "delta_L"):
-        print(f"  {key:18s} {m[key]:.4f}" if m[key] == m[key] else f"  {key:18s} N/A")
+        why = "  (no CAVs: ratio_machines makes none, a humans-only run)" if no_cavs else ""
+        print(f"  {key:18s} {m[key]:.4f}" if m[key] == m[key] else f"  {key:18s} N/A{why}")
     return 0
