@@ -15,6 +15,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fakeday import FakeDay
 
+from urb_jax.core.interrupt import InterruptedRunError
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.hybrid.trainer import HybridTrainer
 from urb_jax.experiment.run import resume_train, run_train
@@ -164,7 +165,7 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
     # a partial resume; the final resume must end exactly like the uninterrupted run.
     (out,) = _train(confs, tmp_path, "killed", stop_after_round=1)
     assert out.stopped == 1 and latest_checkpoint(out.folder)[0] == 1
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(InterruptedRunError, match="Continue with: urb-jax train --resume"):
         resume_train("killed", results_dir=str(tmp_path), progress=False,
                      executor=FakeExecutor(fail_on_call=2))  # round 2 runs, round 3's SUMO batch dies
     assert latest_checkpoint(out.folder)[0] == 2
@@ -178,7 +179,7 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
         return real_checkpoint(self, rounds_done)
 
     monkeypatch.setattr(HybridTrainer, "checkpoint", dying_checkpoint)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(InterruptedRunError, match="Continue with: urb-jax train --resume"):
         resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
     monkeypatch.setattr(HybridTrainer, "checkpoint", real_checkpoint)
     meta = json.loads((out.folder / "checkpoints" / "round_00002" / "meta.json").read_text())

@@ -15,6 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor, H, confs  # noqa: F401  (confs is a fixture)
 
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.interrupt import InterruptedRunError
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.reporting.records import read_records
@@ -100,7 +101,7 @@ def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa:
     """A 2-seed run killed in the middle of round 2's SUMO batch (executor calls: H human days,
     1 calibration batch, then one batch per round), resumed by the second seed's id, ends with
     both seeds' records and metrics equal to the uninterrupted run."""
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(InterruptedRunError, match="Continue with: urb-jax train --resume"):
         _train(confs, tmp_path, "pair", FakeExecutor(fail_on_call=H + 3), seeds=[0, 1])
     lead, other = tmp_path / "pair_s0", tmp_path / "pair_s1"
     assert latest_checkpoint(lead)[0] == 1  # the group checkpoint lives in the first folder

@@ -188,3 +188,18 @@ def test_file_that_is_not_utf8_is_named(grid_copy, name):
     message = rf"{name}: is not UTF-8 text \(byte 0xff on line \d+\).*save it as UTF-8"
     with pytest.raises(NetworkError, match=message):
         read_demand(find_network(str(grid_copy)))
+
+
+def test_start_time_past_the_simulated_day_is_refused_at_load(grid_copy):
+    """It was found only on the first SUMO day, as SumoConfig's error, without naming agents.csv."""
+    from urb_jax.city.network import DAY_LIMIT_S
+    from urb_jax.sumo_bridge import SumoConfig
+
+    assert SumoConfig().max_sim_time_s == DAY_LIMIT_S  # one limit: the day's and the check's
+    _rewrite_agents(grid_copy, 3, "start_time", str(DAY_LIMIT_S))
+    with pytest.raises(NetworkError, match=r"agents.csv: line 4, field 'start_time': 21600 s is past the end "
+                                           r"of a simulated day .*ids \[2\].*Fix: give every agent a "
+                                           r"start_time below 21600"):
+        read_demand(find_network(str(grid_copy)))
+    _rewrite_agents(grid_copy, 3, "start_time", str(DAY_LIMIT_S - 1))
+    read_demand(find_network(str(grid_copy)))

@@ -125,13 +125,10 @@ def test_one_writer_per_run_folder(tmp_path):
     assert (tmp_path / ".same.lock").read_text().strip() == str(os.getpid())
 
 
-def test_resume_of_an_unknown_id_or_a_run_without_checkpoint(tmp_path):
+def test_resume_of_an_unknown_id(tmp_path):
+    """(A run without a checkpoint now resumes from its start: tests/test_faults.py.)"""
     with pytest.raises(UrbJaxError, match="no urb-jax run 'nope' here"):
         resume_train("nope", results_dir=str(tmp_path), progress=False)
-    folder = create_results_dir(tmp_path, "early")
-    (folder / "exp_config.json").write_text(json.dumps({"status": "running", "train_args": {"seed": 0}}))
-    with pytest.raises(UrbJaxError, match=r"no complete checkpoint.*--overwrite"):
-        resume_train("early", results_dir=str(tmp_path), progress=False)
 
 
 @pytest.mark.parametrize("days", [0, -5])

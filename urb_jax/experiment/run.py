@@ -33,9 +33,9 @@ from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import (
     JOURNAL_KEY,
+    DayJournal,
     HumanPhase,
     drop_journal,
-    journal,
     load_replay,
     reuse_human_phase,
     run_human_phase,
@@ -217,7 +217,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     with _stops_cleanly(list(folders.values())), \
             _executor(executor, setup.hyb, folders[seeds[0]], executor_kind, ray_address) as ex:
         if human is None:
-            human = _simulate_human_phase(setup, journal(ex, folders[seeds[0]]), env_seed, mode, progress)
+            human = _simulate_human_phase(setup, DayJournal(ex, folders[seeds[0]]), env_seed, mode, progress)
         for folder in folders.values():
             save_human_phase(folder, human)
         t_human = time.perf_counter() - t0
@@ -278,9 +278,9 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
                       ray_address or args.get("ray_address")) as ex:
         t0 = time.perf_counter()
         human = None
-        if latest_checkpoint(folders[0]) is None:  # stopped before round 0's checkpoint: start over,
+        if latest_checkpoint(folders[0]) is None:  # stopped before round 0's checkpoint: start over
             human = _human_phase_again(setup, args, configs[0], Path(results_dir), ex, progress)
-            for f in folders:                      # the SUMO days done so far come from the journal
+            for f in folders:
                 save_human_phase(f, human)
         result = _train(setup, args, seeds, folders, ex, human, progress, None)
     wall = time.perf_counter() - t0
@@ -298,7 +298,8 @@ def _human_phase_again(setup: TrainSetup, args: TrainArgs, config: dict[str, Any
         return reuse_human_phase(results_dir / config["human_phase_from"], config, setup.scn, setup.task,
                                  setup.hyb, args["env_seed"], calibrate=args["mode"] != "sumo")
     holder = results_dir / config.get(JOURNAL_KEY, config["group"][0])
-    return _simulate_human_phase(setup, journal(executor, holder), args["env_seed"], args["mode"], progress)
+    journal = DayJournal(executor, holder)
+    return _simulate_human_phase(setup, journal, args["env_seed"], args["mode"], progress)
 
 
 def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | None) -> dict[str, Any]:

@@ -1,0 +1,196 @@
+"""Fault injection on a real run (issue #15): one short train run on the embedded network, killed
+with SIGKILL at N instants spread over its whole wall time (human days, calibration, rounds,
+checkpoint writes, test, the final merge and metrics), each resumed with `urb-jax train --resume`;
+then Ctrl-C (SIGINT to the process group, as a terminal sends it) at a few instants, and a SUMO
+worker killed mid-day. Each trial counts as identical when records.parquet and
+metrics/BenchmarkMetrics.csv equal the uninterrupted run's byte for byte.
+
+    python benchmarks/fault_matrix.py [--kills 20] [--sigints 5] [--out DIR]
+
+Resumable: finished trials are kept in DIR/trials.json and skipped when run again. Prints a table
+(also written to DIR/fault_matrix.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HYBRID = {"train_days": 120, "num_envs": 4, "surrogate_days_per_round": 32, "sumo_days_per_round": 4,
+          "sumo_updates": 1, "sumo_workers": 2, "calib_human_days": 5, "calib_varied_days": 2,
+          "calib_steps": 50, "refit_days": 8, "refit_steps": 20}
+FILES = ("records.parquet", "metrics/BenchmarkMetrics.csv")
+
+
+def _cmd(out: Path, *args: str) -> list[str]:
+    return [sys.executable, "-m", "urb_jax.commands.cli", "train", "--results-dir", str(out / "runs"),
+            "--no-progress", *args]
+
+
+def _start(out: Path, exp_id: str) -> subprocess.Popen:
+    args = ("--id", exp_id, "--task-conf", "test", "--hybrid-conf", str(out / "hybrid.json"))
+    return subprocess.Popen(_cmd(out, *args), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+def _digest(folder: Path) -> list[str] | None:
+    if not all((folder / f).is_file() for f in FILES):
+        return None
+    return [hashlib.sha256((folder / f).read_bytes()).hexdigest() for f in FILES]
+
+
+def _phase(folder: Path, rounds: int) -> str:
+    """Where a run was when it stopped, from what it left behind."""
+    cfg_path = folder / "exp_config.json"
+    if not cfg_path.is_file():
+        return "start (no exp_config yet)"
+    cfg = json.loads(cfg_path.read_text())
+    if cfg.get("status") == "done":
+        return "after done"
+    ckpts = sorted((folder / "checkpoints").glob("round_*/meta.json"))
+    if not ckpts:
+        journal = len(list((folder / "human_days.journal").glob("*.npz")))
+        return f"human days / calibration ({journal} journaled)"
+    done = int(ckpts[-1].parent.name.split("_")[1])
+    if (folder / "records.parquet").is_file():
+        return "finish (merged, metrics)"
+    partial = [p for p in (folder / "checkpoints").glob("round_*") if not (p / "meta.json").is_file()]
+    where = f"round {done + 1}" if done < rounds else "test days"
+    return where + (" (checkpoint being written)" if partial else "")
+
+
+def _resume(out: Path, exp_id: str) -> tuple[int, str]:
+    proc = subprocess.run(_cmd(out, "--resume", exp_id), capture_output=True, text=True)
+    return proc.returncode, proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else ""
+
+
+def reference(out: Path) -> dict:
+    ref = out / "runs" / "ref"
+    if _digest(ref) is None:
+        shutil.rmtree(ref, ignore_errors=True)
+        t0 = time.perf_counter()
+        proc = _start(out, "ref")
+        err = proc.communicate()[1]
+        if proc.returncode != 0:
+            raise SystemExit(f"reference run failed:\n{err}")
+        (out / "ref_wall.txt").write_text(f"{time.perf_counter() - t0:.2f}")
+    rounds = int(json.loads((ref / "exp_config.json").read_text())["rounds"])
+    return {"digest": _digest(ref), "wall": float((out / "ref_wall.txt").read_text()), "rounds": rounds}
+
+
+def kill_trial(out: Path, exp_id: str, at: float, sig: int, rounds: int) -> dict:
+    folder = out / "runs" / exp_id
+    shutil.rmtree(folder, ignore_errors=True)
+    proc = _start(out, exp_id)
+    time.sleep(at)
+    stopped_in = _phase(folder, rounds)
+    t0 = time.perf_counter()
+    if proc.poll() is None:
+        os.killpg(proc.pid, sig)
+    err = proc.communicate()[1]
+    stop_s = time.perf_counter() - t0
+    trial = {"id": exp_id, "signal": signal.Signals(sig).name, "at_s": round(at, 1), "phase": stopped_in,
+             "exit": proc.returncode, "stop_s": round(stop_s, 1),
+             "message": err.strip().splitlines()[-1][:160] if err.strip() else ""}
+    resumes = 0
+    while resumes < 3:
+        rc, last = _resume(out, exp_id)
+        resumes += 1
+        if rc == 0 or "already complete" in last:
+            break
+        trial["resume_error"] = last[:200]
+    trial["resumes"] = resumes
+    trial["digest"] = _digest(folder)
+    return trial
+
+
+def worker_kill_trial(out: Path, at: float) -> dict:
+    """SIGKILL one SUMO worker (a child of the run) at `at` s; the run must finish by itself."""
+    folder = out / "runs" / "worker"
+    shutil.rmtree(folder, ignore_errors=True)
+    proc = _start(out, "worker")
+    time.sleep(at)
+    kids = subprocess.run(["pgrep", "-f", "-P", str(proc.pid), "spawn_main"], capture_output=True,
+                          text=True).stdout.split()
+    killed = int(kids[0]) if kids else None
+    if killed:
+        os.kill(killed, signal.SIGKILL)
+    err = proc.communicate()[1]
+    warned = [ln for ln in err.splitlines() if "restarting it" in ln]
+    return {"id": "worker", "signal": "SIGKILL worker", "at_s": round(at, 1), "phase": "SUMO day",
+            "exit": proc.returncode, "killed_pid": killed, "warning": warned[0][:160] if warned else "",
+            "resumes": 0, "digest": _digest(folder)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kills", type=int, default=20)
+    ap.add_argument("--sigints", type=int, default=5)
+    ap.add_argument("--out", default="benchmarks/out/fault_matrix")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "hybrid.json").write_text(json.dumps(HYBRID))
+    ref = reference(out)
+    print(f"reference run: {ref['wall']:.1f} s, {ref['rounds']} rounds, load {os.getloadavg()[0]:.1f}",
+          flush=True)
+    rng = np.random.default_rng(args.seed)
+    span = ref["wall"] * 1.05  # the last instants land in the finish or after it
+    kill_at = [span * (i + rng.uniform()) / args.kills for i in range(args.kills)]  # one per stratum
+    int_at = [span * (i + rng.uniform()) / args.sigints for i in range(args.sigints)]
+    plan = ([(f"kill{i:02d}", t, signal.SIGKILL) for i, t in enumerate(kill_at)]
+            + [(f"int{i:02d}", t, signal.SIGINT) for i, t in enumerate(int_at)])
+    done_path = out / "trials.json"
+    trials = json.loads(done_path.read_text()) if done_path.is_file() else {}
+    for exp_id, at, sig in plan:
+        if exp_id not in trials:
+            trials[exp_id] = kill_trial(out, exp_id, at, sig, ref["rounds"])
+        else:
+            continue
+        t = trials[exp_id]
+        same = t["digest"] == ref["digest"]
+        print(f"{exp_id}: {t['signal']} at {t['at_s']} s in {t['phase']}: exit {t['exit']} after "
+              f"{t['stop_s']} s, {t['resumes']} resume(s), identical {same}", flush=True)
+        done_path.write_text(json.dumps(trials, indent=1))
+    if "worker" not in trials:
+        trials["worker"] = worker_kill_trial(out, 0.4 * ref["wall"])
+        done_path.write_text(json.dumps(trials, indent=1))
+    table = _table(trials, ref)
+    (out / "fault_matrix.md").write_text(table)
+    print(table)
+
+
+def _table(trials: dict, ref: dict) -> str:
+    rows = ["| trial | signal | at (s) | stopped in | exit | stop (s) | resumes | identical |",
+            "|---|---|---|---|---|---|---|---|"]
+    for t in trials.values():
+        rows.append(f"| {t['id']} | {t['signal']} | {t['at_s']} | {t['phase']} | {t['exit']} | "
+                    f"{t.get('stop_s', '')} | {t['resumes']} | {t['digest'] == ref['digest']} |")
+    summary = []
+    for kind, label in (("SIGKILL", "SIGKILL + resume"), ("SIGINT", "SIGINT + resume"),
+                        ("SIGKILL worker", "SUMO worker killed mid-day")):
+        group = [t for t in trials.values() if t["signal"] == kind]
+        if group:
+            same = sum(t["digest"] == ref["digest"] for t in group)
+            summary.append(f"- {label}: {same}/{len(group)} identical to the uninterrupted run")
+    sig = [t for t in trials.values() if t["signal"] == "SIGINT" and t["exit"] == 130]
+    if sig:
+        summary.append(f"- SIGINT: exit 130 in {len(sig)} trial(s), stopped within "
+                       f"{max(t['stop_s'] for t in sig):.1f} s at most")
+    return "\n".join([*rows, "", *summary]) + "\n"
+
+
+if __name__ == "__main__":
+    main()

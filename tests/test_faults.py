@@ -1,0 +1,234 @@
+"""Faults and bad input (issue #15, cases 6-10): a run stopped in its human phase resumes to the
+same results; Ctrl-C and a full disk end a run with a message that says how to go on; tasks whose
+metrics could not exist are refused before any SUMO day; --seeds and config paths."""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import re
+import sys
+from collections import namedtuple
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_hybrid_loop import FakeExecutor, confs  # noqa: F401  (module fixture)
+
+from urb_jax.commands.cli import main
+from urb_jax.core.errors import ConfigError
+from urb_jax.core.interrupt import DiskFullError, InterruptedRunError, no_space
+from urb_jax.experiment import checkpoints
+from urb_jax.experiment.checkpoints import latest_checkpoint
+from urb_jax.experiment.human_phase import JOURNAL_DIR
+from urb_jax.experiment.run import resume_train, run_baseline, run_train
+
+H = 10  # configs/task/test.json
+
+
+def _digest(folder: Path) -> tuple[str, ...]:
+    return tuple(hashlib.sha256((folder / f).read_bytes()).hexdigest()
+                 for f in ("records.parquet", "metrics/BenchmarkMetrics.csv"))
+
+
+def _train(confs, tmp_path, exp_id, executor=None, **kw):  # noqa: F811
+    return run_train(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
+                     executor=executor or FakeExecutor(), **{**confs, **kw})
+
+
+@pytest.fixture(scope="module")
+def reference(confs, tmp_path_factory):  # noqa: F811
+    root = tmp_path_factory.mktemp("ref")
+    ex = FakeExecutor()
+    (ref,) = _train(confs, root, "ref", ex)
+    return {"digest": _digest(ref.folder), "days": sum(len(b) for b, _ in ex.batches)}
+
+
+def test_a_run_stopped_in_its_human_phase_resumes_to_the_same_results(confs, tmp_path, reference):  # noqa: F811
+    """Before: exp_config.json came after the human phase, so such a folder was neither resumable
+    nor replaceable by --overwrite; now the run resumes, reading its finished human days back."""
+    with pytest.raises(InterruptedRunError, match=r"no checkpoint yet; the SUMO days of its human phase "
+                                                  r"are kept\. Continue with: urb-jax train --resume k "):
+        _train(confs, tmp_path, "k", FakeExecutor(fail_on_call=5))  # human day 5
+    folder = tmp_path / "k"
+    assert json.loads((folder / "exp_config.json").read_text())["status"] == "running"
+    assert 0 < len(list((folder / JOURNAL_DIR).glob("*.npz"))) <= 4  # a repeated day is stored once
+    ex = FakeExecutor()
+    (out,) = resume_train("k", results_dir=str(tmp_path), progress=False, executor=ex)
+    assert sum(len(b) for b, _ in ex.batches) == reference["days"] - 4  # days 1-4 read back
+    assert _digest(out.folder) == reference["digest"]
+    assert not (folder / JOURNAL_DIR).exists()  # the run's own journal goes once it is done
+
+
+def test_a_stopped_run_can_be_replaced_with_overwrite(confs, tmp_path):  # noqa: F811
+    with pytest.raises(InterruptedRunError):
+        _train(confs, tmp_path, "k", FakeExecutor(fail_on_call=1))
+    (out,) = _train(confs, tmp_path, "k", overwrite=True)
+    assert json.loads((out.folder / "exp_config.json").read_text())["status"] == "done"
+
+
+def test_a_full_disk_keeps_the_last_checkpoint_and_resumes(confs, tmp_path, monkeypatch, reference):  # noqa: F811
+    """Before: orbax's traceback per array, and a partial checkpoint directory."""
+    real = checkpoints.shutil.disk_usage
+    usage = namedtuple("usage", "total used free")
+    calls = []
+
+    def filling(path):
+        calls.append(path)
+        return usage(1, 1, 1000) if len(calls) >= 3 else real(path)  # round 2's checkpoint
+
+    monkeypatch.setattr(checkpoints.shutil, "disk_usage", filling)
+    want = (rf"no space left on device in {re.escape(str(tmp_path))}\. .*needs about .* MiB, 0\.0 MiB are "
+            r"free.*last complete checkpoint \(round 1\) is kept\. Continue with: urb-jax train --resume k")
+    with pytest.raises(DiskFullError, match=want):
+        _train(confs, tmp_path, "k")
+    monkeypatch.undo()
+    folder = tmp_path / "k"
+    assert latest_checkpoint(folder)[0] == 1  # the partial round_00002 (no meta.json) is skipped
+    (out,) = resume_train("k", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    assert _digest(out.folder) == reference["digest"]
+
+
+def test_a_full_disk_is_recognised_through_library_wrappers():
+    orbax_like = ValueError("RESOURCE_EXHAUSTED: Error writing: No space left on device [os_error_code='28']")
+    assert no_space(orbax_like)
+    try:
+        try:
+            raise OSError(errno.ENOSPC, "write")
+        except OSError as inner:
+            raise RuntimeError("pyarrow failed") from inner
+    except RuntimeError as outer:
+        assert no_space(outer)
+    assert not no_space(ValueError("RESOURCE_EXHAUSTED: out of memory"))
+    assert not no_space(OSError(errno.EACCES, "denied"))
+
+
+def _task(tmp_path: Path, **values) -> str:
+    task = json.loads((Path(__file__).parents[1] / "configs" / "task" / "test.json").read_text())
+    path = tmp_path / "task.json"
+    path.write_text(json.dumps({**task, **values}))
+    return str(path)
+
+
+def test_a_task_without_cavs_is_refused_before_any_sumo_day(confs, tmp_path):  # noqa: F811
+    """Before: the whole human phase ran, then orbax crashed on zero-size arrays."""
+    ex = FakeExecutor()
+    results = tmp_path / "results"
+    with pytest.raises(ConfigError, match=r"task.json: key 'ratio_machines' 0.001 makes 0 of the 400 agents "
+                                          r"CAVs.*Fix: .*urb-jax baseline --task-conf"):
+        _train(confs, results, "k", ex, task_conf=_task(tmp_path, ratio_machines=0.001))
+    assert ex.batches == [] and not results.exists()
+
+
+@pytest.mark.parametrize(("key", "metric"), [("test_eps", "t_CAV"), ("human_learning_episodes", "t_pre")])
+def test_a_task_whose_metrics_cannot_exist_is_refused(confs, tmp_path, key, metric):  # noqa: F811
+    """Before: exit 0 with N/A metrics."""
+    task = _task(tmp_path, **{key: 0})
+    with pytest.raises(ConfigError, match=rf"key '{key}' is 0, but .*{metric}.*Fix: set it to 1 or more"):
+        _train(confs, tmp_path / "results", "k", task_conf=task)
+    with pytest.raises(ConfigError, match=rf"key '{key}' is 0"):
+        run_baseline(task_conf=task, results_dir=str(tmp_path / "results"), progress=False,
+                     day_fn=lambda *a, **k: pytest.fail("no SUMO day"))
+    assert not (tmp_path / "results").exists()
+
+
+@pytest.mark.parametrize(("seeds", "message"), [("a,b", "seeds are comma-separated integers"),
+                                                ("0,0", "seed 0 is given twice")])
+def test_bad_seeds_are_refused_before_any_folder(tmp_path, capsys, seeds, message):
+    with pytest.raises(SystemExit) as exit_:
+        main(["train", "--seeds", seeds, "--results-dir", str(tmp_path / "r")])
+    assert exit_.value.code == 2
+    assert f"argument --seeds: {seeds!r}: {message}" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
+def test_resume_from_another_folder_finds_a_relative_task_config(confs, tmp_path, monkeypatch):  # noqa: F811
+    (tmp_path / "a").mkdir()
+    monkeypatch.chdir(tmp_path / "a")
+    _task(tmp_path / "a")
+    (out,) = _train(confs, tmp_path / "r", "k", task_conf="task.json", stop_after_round=1)
+    args = json.loads((out.folder / "exp_config.json").read_text())["train_args"]
+    assert args["task_conf"] == str(tmp_path / "a" / "task.json")  # recorded resolved
+    monkeypatch.chdir(tmp_path)
+    (done,) = resume_train("k", results_dir=str(tmp_path / "r"), progress=False, executor=FakeExecutor())
+    assert json.loads((done.folder / "exp_config.json").read_text())["status"] == "done"
+
+
+def test_ctrl_c_restarts_no_worker():
+    """Before: the scheduler restarted every busy worker while handling Ctrl-C."""
+    import numpy as np
+
+    from urb_jax.city.scenario import load_scenario
+    from urb_jax.sumo_bridge.scheduler import schedule_days
+
+    class Slot:
+        def __init__(self, index):
+            self.index, self.task, self.started = index, None, 0.0
+
+    class Backend:
+        def __init__(self):
+            self.slots, self.restarts = [Slot(0), Slot(1)], 0
+
+        def submit(self, slot, job):
+            return None
+
+        def wait(self, busy, timeout):
+            raise KeyboardInterrupt
+
+        def overdue(self, slot):
+            raise AssertionError
+
+        def restart(self, slot):
+            self.restarts += 1
+
+    scn = load_scenario("urb_grid")
+    backend = Backend()
+    with pytest.raises(KeyboardInterrupt):
+        schedule_days(backend, scn, np.zeros((2, scn.n_agents), np.int32), [1, 2], None, day_timeout_s=60)
+    assert backend.restarts == 0
+    assert all(s.task is not None for s in backend.slots)  # busy: closing the executor kills them
+
+
+@pytest.mark.slow
+@pytest.mark.sumo
+@pytest.mark.parametrize("presses", [1, 2])
+def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses):  # noqa: F811
+    """Before: the first SIGINT was swallowed and the second hung for over a minute. Now one press
+    stops the run (exit 130, the resume command printed, SUMO workers gone); two exit at once."""
+    import signal
+    import subprocess
+    import time
+
+    hyb = json.loads(Path(confs["hybrid_conf"]).read_text())
+    (tmp_path / "hyb.json").write_text(json.dumps({**hyb, "sumo_workers": 2}))
+    cmd = [sys.executable, "-m", "urb_jax.commands.cli", "train", "--results-dir", str(tmp_path), "--id", "k",
+           "--task-conf", "test", "--hybrid-conf", str(tmp_path / "hyb.json"), "--alg-conf",
+           confs["alg_conf"], "--no-progress"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    journal = tmp_path / "k" / JOURNAL_DIR
+    deadline = time.monotonic() + 240
+    while not (journal.is_dir() and any(journal.glob("*.npz"))):  # SUMO days are running
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.poll() else ""
+        time.sleep(0.2)
+    workers = [int(p) for p in subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
+                                              text=True).stdout.split()]
+    t0 = time.monotonic()
+    for _ in range(presses):
+        os.killpg(proc.pid, signal.SIGINT)  # as a terminal does: the whole foreground group
+        time.sleep(0.3)
+    err = proc.communicate(timeout=60)[1]
+    took = time.monotonic() - t0
+    assert proc.returncode == 130, err
+    assert took < 15, took
+    if presses == 1:
+        assert "Continue with: urb-jax train --resume k" in err and "Traceback" not in err
+    else:
+        assert "interrupted twice: exiting now" in err
+    time.sleep(0.5)
+    alive = [p for p in workers if Path(f"/proc/{p}").exists()
+             and "zombie" not in Path(f"/proc/{p}/status").read_text()]
+    assert not alive, alive
