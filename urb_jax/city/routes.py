@@ -191,6 +191,9 @@ def unroutable(graph: nx.DiGraph, od_edges: Sequence[tuple[str, str]]) -> dict[i
             missing = origin if origin not in graph else destination
             bad[i] = f"edge '{missing}' has no connection in the route graph"
             continue
+        if origin == destination:  # JanuX's walk never revisits its start: it would loop forever
+            bad[i] = f"origin and destination are the same edge '{origin}'"
+            continue
         o, d = comp[origin], comp[destination]
         if o == d:
             continue
