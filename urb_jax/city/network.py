@@ -9,7 +9,7 @@ from __future__ import annotations
 import ast
 import io
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +46,14 @@ class Demand:
     kind: tuple[str, ...]
     origins: tuple[str, ...]  # edge ids
     destinations: tuple[str, ...]
+
+    def subset(self, keep: np.ndarray) -> Demand:
+        """The rows where `keep` [N] is True, in file order (the od lists stay whole, so indices
+        still point into them)."""
+        rows = np.flatnonzero(keep)
+        return replace(self, agent_id=self.agent_id[rows], origin=self.origin[rows],
+                       destination=self.destination[rows], start_time=self.start_time[rows],
+                       kind=tuple(self.kind[r] for r in rows))
 
 
 def network_files(folder: Path) -> NetworkFiles:

@@ -15,14 +15,15 @@ import json
 import logging
 import os
 import time
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
+import networkx as nx
 import numpy as np
 
 from urb_jax import __version__
 from urb_jax.city.network import DEFAULT_NETWORK, Demand, NetworkFiles, find_network, read_demand
-from urb_jax.city.netxml import read_net
+from urb_jax.city.netxml import NetData, read_net
 from urb_jax.city.routes import (
     ODRoutes,
     RouteParams,
@@ -36,7 +37,7 @@ from urb_jax.core.errors import NetworkError, RouteError
 from urb_jax.core.paths import cache_dir
 
 log = logging.getLogger(__name__)
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2  # 2: the drop-unroutable choice in the key, `dropped_unroutable` stored
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,6 +75,8 @@ class Scenario:
     agent_destination: np.ndarray
     agent_depart: np.ndarray  # int seconds
     agent_kind: tuple[str, ...]  # 'Human' or 'AV' as given in agents.csv
+    # [D] ids of agents.csv rows left out because their OD pair has no route (drop_unroutable)
+    dropped_unroutable: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def n_agents(self) -> int:
@@ -143,7 +146,13 @@ class Scenario:
             "departures_s": [int(self.agent_depart.min()), int(self.agent_depart.max())],
             "mean_min_fft_min": float(self.fft.min(axis=1).mean()),
             "env_seed": self.env_seed,
+            "dropped_unroutable_agents": int(self.dropped_unroutable.shape[0]),
         }
+
+    def dropped_record(self) -> dict[str, object]:
+        """exp_config.json's `dropped_unroutable_agents`: how many agents and which."""
+        ids = [int(i) for i in self.dropped_unroutable]
+        return {"count": len(ids), "ids": ids}
 
 
 def _file_digest(paths: list[Path]) -> str:
@@ -154,11 +163,11 @@ def _file_digest(paths: list[Path]) -> str:
     return h.hexdigest()
 
 
-def _cache_key(files: NetworkFiles, params: RouteParams, env_seed: int) -> str:
+def _cache_key(files: NetworkFiles, params: RouteParams, env_seed: int, drop_unroutable: bool) -> str:
     h = hashlib.sha256()
     h.update(_file_digest([files.net, files.agents, files.od]).encode())
     h.update(json.dumps(asdict(params), sort_keys=True).encode())
-    h.update(f"seed={env_seed};format={CACHE_FORMAT}".encode())
+    h.update(f"seed={env_seed};drop_unroutable={drop_unroutable};format={CACHE_FORMAT}".encode())
     return h.hexdigest()[:24]
 
 
@@ -195,42 +204,91 @@ def load_scenario(
     route_params: RouteParams | None = None,
     use_cache: bool = True,
     workers: int | None = None,
+    drop_unroutable: bool = False,
 ) -> Scenario:
-    """Build (or load from cache) the Scenario of a network for an env seed."""
+    """Build (or load from cache) the Scenario of a network for an env seed.
+
+    Agents whose OD pair has no route stop the build with a NetworkError naming them (URB stops on
+    them too, see docs/networks.md); `drop_unroutable` leaves them out instead and records their
+    ids in `Scenario.dropped_unroutable`.
+    """
     params = route_params or RouteParams()
     files = find_network(network, networks_dir)
-    cache_file = cache_dir() / "scenarios" / f"{files.name}-{_cache_key(files, params, env_seed)}.npz"
+    key = _cache_key(files, params, env_seed, drop_unroutable)
+    cache_file = cache_dir() / "scenarios" / f"{files.name}-{key}.npz"
+    scn = None
     if use_cache and cache_file.is_file():
         try:
             # The key hashes the files' contents, so an identical copy elsewhere shares the entry;
             # SUMO must still read the copy that was asked for, not the one that built the entry.
-            return replace(_load(cache_file), net_file=str(files.net))
+            scn = replace(_load(cache_file), net_file=str(files.net))
         except Exception as exc:  # a stale or damaged cache is rebuilt, never trusted
             log.warning("scenario cache %s is unreadable (%s): rebuilding it", cache_file, exc)
-    scn = build_scenario(files, params, env_seed, workers=workers)
-    if use_cache:
-        _save(scn, cache_file)
+    if scn is None:
+        scn = build_scenario(files, params, env_seed, workers=workers, drop_unroutable=drop_unroutable)
+        if use_cache:
+            _save(scn, cache_file)
+    if scn.dropped_unroutable.size:
+        log.warning("%s: left out %d agent(s) whose OD pair has no route (--drop-unroutable): ids %s",
+                    files.name, scn.dropped_unroutable.size, " ".join(map(str, scn.dropped_unroutable)))
     return scn
 
 
 def build_scenario(
-    files: NetworkFiles, params: RouteParams, env_seed: int, workers: int | None = None
+    files: NetworkFiles, params: RouteParams, env_seed: int, workers: int | None = None,
+    drop_unroutable: bool = False,
 ) -> Scenario:
+    """Read the network, check every OD pair on the route graph (seconds), then sample routes."""
     t0 = time.perf_counter()
     net = read_net(files.net)
-    demand = read_demand(files, net)
-    pairs = sorted({(int(o), int(d)) for o, d in zip(demand.origin, demand.destination, strict=True)})
-    od_edges = [(demand.origins[o], demand.destinations[d]) for o, d in pairs]
     graph = build_route_graph(net, passenger_only=params.passenger_only)
+    demand, dropped = _routable_demand(files, params, read_demand(files, net), graph, drop_unroutable)
+    pairs = _od_pairs(demand)
+    od_edges = [(demand.origins[o], demand.destinations[d]) for o, d in pairs]
     if workers is None:
         workers = min(os.cpu_count() or 1, 4)
-    _refuse_unroutable(files, params, demand, pairs, list(unroutable(graph, od_edges).items()))
     (results,) = generate_routes(graph, od_edges, params, env_seed, workers=workers)
     failed = [(i, r) for i, r in enumerate(results) if isinstance(r, str)]  # sampling found none
     _refuse_unroutable(files, params, demand, pairs, failed)
-    ok: list[ODRoutes] = [r for r in results if isinstance(r, ODRoutes)]
-    index = net.index()
-    k = params.number_of_paths
+    routes, route_len, valid = _route_arrays([r for r in results if isinstance(r, ODRoutes)], net.index(),
+                                             params.number_of_paths)
+    n_short = int((~valid).any(axis=1).sum())
+    if n_short:
+        log.warning(
+            "%s: %d OD pair(s) have fewer than %d distinct routes; the last distinct route is "
+            "repeated and masked (route_valid=False).", files.name, n_short, params.number_of_paths,
+        )
+    log.info("built scenario %s in %.1f s", files.name, time.perf_counter() - t0)
+    return _assemble(files, params, env_seed, net, demand, pairs, (routes, route_len, valid), dropped)
+
+
+def _od_pairs(demand: Demand) -> list[tuple[int, int]]:
+    """The distinct (origin, destination) index pairs of the demand, sorted (URB's routes.csv order)."""
+    return sorted({(int(o), int(d)) for o, d in zip(demand.origin, demand.destination, strict=True)})
+
+
+def _routable_demand(files: NetworkFiles, params: RouteParams, demand: Demand, graph: nx.DiGraph,
+                     drop: bool) -> tuple[Demand, np.ndarray]:
+    """(the demand, ids [D] of agents left out): agents whose OD pair has no path in the route
+    graph are refused, or with `drop` left out. Found by reachability alone, before sampling."""
+    pairs = _od_pairs(demand)
+    bad = unroutable(graph, [(demand.origins[o], demand.destinations[d]) for o, d in pairs])
+    if not bad:
+        return demand, np.zeros(0, dtype=np.int64)
+    if not drop:
+        _refuse_unroutable(files, params, demand, pairs, list(bad.items()))
+    bad_pairs = {pairs[i] for i in bad}
+    out = np.array([(int(o), int(d)) in bad_pairs
+                    for o, d in zip(demand.origin, demand.destination, strict=True)])  # [N]
+    if out.all():
+        raise NetworkError(files.agents, f"no agent has a route in {files.net.name}; --drop-unroutable "
+                           "would leave none.", "check that the od file belongs to this network.")
+    return demand.subset(~out), np.sort(demand.agent_id[out]).astype(np.int64)
+
+
+def _route_arrays(ok: list[ODRoutes], index: dict[str, int], k: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(routes [O, K, L] edge indices -1 padded, route_len [O, K], valid [O, K])."""
     max_len = max(len(route) for r in ok for route in r.routes)
     routes = np.full((len(ok), k, max_len), -1, dtype=np.int32)
     route_len = np.zeros((len(ok), k), dtype=np.int32)
@@ -240,21 +298,21 @@ def build_scenario(
         for j, route in enumerate(r.routes):
             routes[o, j, : len(route)] = [index[e] for e in route]
             route_len[o, j] = len(route)
+    return routes, route_len, valid
+
+
+def _assemble(files: NetworkFiles, params: RouteParams, env_seed: int, net: NetData, demand: Demand,
+              pairs: list[tuple[int, int]], route_arrays: tuple[np.ndarray, np.ndarray, np.ndarray],
+              dropped: np.ndarray) -> Scenario:
+    """The Scenario from its parts; agents sorted by departure (stable)."""
+    routes, route_len, valid = route_arrays
     fft, fft_full = free_flow_times(routes, net.length, net.speed, route_len)
-    route_length = np.append(net.length, 0.0)[routes].sum(axis=-1)
-    n_short = int((~valid).any(axis=1).sum())
-    if n_short:
-        log.warning(
-            "%s: %d OD pair(s) have fewer than %d distinct routes; the last distinct route is "
-            "repeated and masked (route_valid=False).", files.name, n_short, k,
-        )
     od_lookup = {p: i for i, p in enumerate(pairs)}
     agent_od_rows = np.array(
         [od_lookup[(int(o), int(d))] for o, d in zip(demand.origin, demand.destination, strict=True)],
         dtype=np.int32,
     )
     order = np.argsort(demand.start_time, kind="stable")
-    log.info("built scenario %s in %.1f s", files.name, time.perf_counter() - t0)
     return Scenario(
         name=files.name,
         net_file=str(files.net),
@@ -269,20 +327,21 @@ def build_scenario(
         edge_capacity=net.capacity,
         od_origin=np.array([p[0] for p in pairs], dtype=np.int32),
         od_destination=np.array([p[1] for p in pairs], dtype=np.int32),
-        od_origin_edge=tuple(e for e, _ in od_edges),
-        od_destination_edge=tuple(e for _, e in od_edges),
+        od_origin_edge=tuple(demand.origins[o] for o, _ in pairs),
+        od_destination_edge=tuple(demand.destinations[d] for _, d in pairs),
         od_routes=routes,
         od_route_len=route_len,
         od_route_valid=valid,
         od_fft=fft,
         od_fft_full=fft_full,
-        od_route_length=route_length,
+        od_route_length=np.append(net.length, 0.0)[routes].sum(axis=-1),
         agent_id=demand.agent_id[order],
         agent_od=agent_od_rows[order],
         agent_origin=demand.origin[order].astype(np.int32),
         agent_destination=demand.destination[order].astype(np.int32),
         agent_depart=demand.start_time[order],
         agent_kind=tuple(demand.kind[i] for i in order),
+        dropped_unroutable=dropped,
     )
 
 
@@ -305,7 +364,8 @@ def _refuse_unroutable(files: NetworkFiles, params: RouteParams, demand: Demand,
         f"{len(failures)} OD pair(s) have no route in {files.net.name}"
         + (" for passenger cars" if params.passenger_only else "") + f", {len(agents)} agent(s):\n  "
         + "\n  ".join(lines) + f"\n  all agent ids: {' '.join(map(str, sorted(agents)))}\n",
-        "fix the origin/destination indices of these agents or remove them.",
+        "fix the origin/destination indices of these agents, remove them from agents.csv, or pass "
+        "--drop-unroutable to leave them out (recorded in exp_config.json; URB itself stops on them).",
     )
 
 

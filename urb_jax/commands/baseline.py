@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
         model=args.model, net=args.net, task_conf=args.task_conf, env_conf=args.env_conf,
         env_seed=args.env_seed, exp_id=args.id, networks_dir=args.networks_dir,
         results_dir=args.results_dir, overwrite=args.overwrite, progress=not args.no_progress,
-        human_phase_from=args.human_phase_from,
+        human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
     )
     m = out.metrics
     replayed = out.replayed_days

@@ -14,6 +14,9 @@ def add_network_flags(parser: argparse.ArgumentParser) -> None:
     add_networks_dir(parser)
     parser.add_argument("--env-seed", type=int, default=42,
                         help="seeds routes, humans, mutation and SUMO (default 42)")
+    parser.add_argument("--drop-unroutable", action="store_true",
+                        help="leave out agents whose OD pair has no passenger-car route (default: stop "
+                             "and name them, as URB stops on them); recorded in exp_config.json")
 
 
 def add_networks_dir(parser: argparse.ArgumentParser) -> None:

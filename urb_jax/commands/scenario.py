@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed,
-                        use_cache=not args.no_cache)
+                        use_cache=not args.no_cache, drop_unroutable=args.drop_unroutable)
     summary = scn.summary()
     summary["seconds"] = round(time.perf_counter() - t0, 3)
     print(json.dumps(summary, indent=2))

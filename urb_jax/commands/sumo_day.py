@@ -30,7 +30,8 @@ def run(args: argparse.Namespace) -> int:
     from urb_jax.city.scenario import load_scenario
     from urb_jax.sumo_bridge import ARRIVED, InProcessExecutor, SumoConfig, SumoPool
 
-    scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed)
+    scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed,
+                        drop_unroutable=args.drop_unroutable)
     if args.routes == "fft":
         choices = scn.fft.argmin(1)
     elif args.routes == "random":

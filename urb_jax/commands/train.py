@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
             exp_id=args.id, mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
             overwrite=args.overwrite, progress=not args.no_progress, train_days=args.train_days,
             executor_kind=args.executor or "pool", ray_address=args.ray_address,
-            human_phase_from=args.human_phase_from)
+            human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable)
     for out in outs:
         m = out.metrics
         print(f"results: {out.folder}  ({out.wall_time_s:.1f} s)")

@@ -27,7 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from urb_jax.surrogate.validate import ValidationConfig, validate
 
-    scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed)
+    scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed,
+                        drop_unroutable=args.drop_unroutable)
     out = Path(args.out) if args.out else Path("results") / "surrogate_validation" / scn.name
     vcfg = ValidationConfig(train_days=args.train_days, test_days=args.days,
                             deviation_agents=args.agents, noise_agents=max(1, args.agents // 3),

@@ -100,14 +100,16 @@ def load_setup(args: TrainArgs) -> TrainSetup:
                               "Fix: pass --train-days 1 or more (6000 is the paper's budget).")
         hyb = dataclasses.replace(hyb, train_days=int(args["train_days"]))
     alg_config = load_algo_config(args["alg"], args["alg_conf"])
-    scn = _scenario(args["net"], args["networks_dir"], args["env_seed"], env, task)
+    scn = _scenario(args["net"], args["networks_dir"], args["env_seed"], env, task,
+                    bool(args.get("drop_unroutable", False)))  # runs before the flag: False
     return TrainSetup(scn, task, task_path, env, env_path, hyb, hyb_path, alg_config)
 
 
 def _scenario(net: str, networks_dir: str | None, env_seed: int, env: EnvConfig,
-              task: TaskConfig) -> Scenario:
-    """The network's scenario with the task's demand."""
-    scn = load_scenario(net, networks_dir=networks_dir, env_seed=env_seed, route_params=env.route_params())
+              task: TaskConfig, drop_unroutable: bool) -> Scenario:
+    """The network's scenario with the task's demand (`drop_unroutable`: see load_scenario)."""
+    scn = load_scenario(net, networks_dir=networks_dir, env_seed=env_seed, route_params=env.route_params(),
+                        drop_unroutable=drop_unroutable)
     return scale_demand(scn, task.demand_scale, seed=env_seed, mode=task.demand_mode,
                         jitter_s=task.demand_jitter_s)
 
@@ -190,7 +192,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
               overwrite: bool = False, progress: bool = True, train_days: int | None = None,
               executor: DayExecutor | None = None, stop_after_round: int | None = None,
               executor_kind: str = "pool", ray_address: str | None = None,
-              human_phase_from: str | None = None) -> list[RunResult]:
+              human_phase_from: str | None = None, drop_unroutable: bool = False) -> list[RunResult]:
     """Train every seed (sharing the human phase and the SUMO executor; groups of up to
     `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
     `human_phase_from`: reuse that earlier train run's human phase instead of simulating it."""
@@ -200,7 +202,8 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     args: TrainArgs = {
         "alg": alg, "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
         "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode, "networks_dir": networks_dir,
-        "train_days": train_days, "executor": executor_kind, "ray_address": ray_address}
+        "train_days": train_days, "executor": executor_kind, "ray_address": ray_address,
+        "drop_unroutable": drop_unroutable}
     t0 = time.perf_counter()
     setup = load_setup(args)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True)
@@ -314,7 +317,14 @@ def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | No
         "num_machines": int(scn.n_agents * task.ratio_machines), "exp_type": "normal",
         "human_days": task.human_learning_episodes, "versions": versions(), "command": sys.argv,
         "status": "running", "human_phase_from": human_phase_from,
+        **_dropped(scn, bool(args.get("drop_unroutable", False))),
     }
+
+
+def _dropped(scn: Scenario, drop_unroutable: bool) -> dict[str, Any]:
+    """exp_config.json keys of the --drop-unroutable opt-in: the choice and the agents it left out
+    (`export-day` rebuilds the scenario from the choice)."""
+    return {"drop_unroutable": drop_unroutable, "dropped_unroutable_agents": scn.dropped_record()}
 
 
 def _simulate_human_phase(setup: TrainSetup, executor: DayExecutor, env_seed: int, mode: str,
@@ -389,8 +399,8 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
                  env_conf: str = "config1", env_seed: int = 42, exp_id: str | None = None,
                  networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
                  progress: bool = True, day_fn: DayFn | None = None,
-                 task_overrides: dict[str, Any] | None = None, human_phase_from: str | None = None
-                 ) -> RunResult:
+                 task_overrides: dict[str, Any] | None = None, human_phase_from: str | None = None,
+                 drop_unroutable: bool = False) -> RunResult:
     """One baseline experiment in results/<exp_id>/ (`human_phase_from`: days 1..H replayed from
     that run's records instead of simulated)."""
     net = net or DEFAULT_NETWORK
@@ -402,10 +412,11 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     check_runnable(task, task_path, 0, train=False)
     exp_id = exp_id or f"{model}_{Path(net).name}_{task_path.stem}_s{env_seed}"
     t0 = time.perf_counter()
-    scn = _scenario(net, networks_dir, env_seed, env, task)  # a network error leaves no folder behind
+    scn = _scenario(net, networks_dir, env_seed, env, task, drop_unroutable)  # a network error: no folder
     folder = create_results_dir(results_dir, exp_id, overwrite)
     log_run_to(folder)
-    config = _baseline_config(scn, task, task_path, env, env_path, env_seed, model, human_phase_from)
+    config = _baseline_config(scn, task, task_path, env, env_path, env_seed, model, human_phase_from,
+                              drop_unroutable)
     write_config(folder, config)
     with _stops_cleanly([folder], resumable=False):
         return _run_baseline_days(folder, config, scn, task, env, policy, env_seed, day_fn, results_dir,
@@ -432,7 +443,8 @@ def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task
 
 
 def _baseline_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvConfig, env_path: Path,
-                     env_seed: int, model: str, human_phase_from: str | None) -> dict[str, Any]:
+                     env_seed: int, model: str, human_phase_from: str | None,
+                     drop_unroutable: bool) -> dict[str, Any]:
     return {
         **to_dict(env), **to_dict(task),
         "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed,
@@ -441,5 +453,5 @@ def _baseline_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvC
         "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
         "exp_type": "normal", "human_days": task.human_learning_episodes, "training_days": task.training_eps,
         "versions": versions(), "urb_jax_version": __version__, "command": sys.argv,
-        "status": "running", "human_phase_from": human_phase_from,
+        "status": "running", "human_phase_from": human_phase_from, **_dropped(scn, drop_unroutable),
     }

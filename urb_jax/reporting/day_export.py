@@ -62,7 +62,8 @@ def scenario_of_run(folder: str | os.PathLike, networks_dir: str | None = None) 
     nets = networks_dir or cfg.get("train_args", {}).get("networks_dir")
     params = RouteParams(number_of_paths=int(cfg["number_of_paths"]), beta=float(cfg["path_gen_beta"]),
                          num_samples=int(cfg["num_samples"]))
-    scn = load_scenario(cfg["network"], networks_dir=nets, env_seed=int(cfg["env_seed"]), route_params=params)
+    scn = load_scenario(cfg["network"], networks_dir=nets, env_seed=int(cfg["env_seed"]), route_params=params,
+                        drop_unroutable=bool(cfg.get("drop_unroutable", False)))
     scn = scale_demand(scn, float(cfg.get("demand_scale", 1.0)), seed=int(cfg["env_seed"]),
                        mode=cfg.get("demand_mode", "auto"), jitter_s=int(cfg.get("demand_jitter_s", 60)))
     if scn.n_agents != int(cfg.get("num_agents", scn.n_agents)):
