@@ -37,8 +37,8 @@ def _cmd(out: Path, *args: str) -> list[str]:
             "--no-progress", *args]
 
 
-def _start(out: Path, exp_id: str) -> subprocess.Popen:
-    args = ("--id", exp_id, "--task-conf", "test", "--hybrid-conf", str(out / "hybrid.json"))
+def _start(out: Path, exp_id: str, *extra: str) -> subprocess.Popen:
+    args = ("--id", exp_id, "--task-conf", "test", "--hybrid-conf", str(out / "hybrid.json"), *extra)
     return subprocess.Popen(_cmd(out, *args), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -104,10 +104,15 @@ def kill_trial(out: Path, exp_id: str, at: float, sig: int, rounds: int) -> dict
              "exit": proc.returncode, "stop_s": round(stop_s, 1),
              "message": err.strip().splitlines()[-1][:160] if err.strip() else ""}
     resumes = 0
-    while resumes < 3:
+    while resumes < 3:  # what a user does: --resume; the same command again if there is nothing to resume
         rc, last = _resume(out, exp_id)
         resumes += 1
         if rc == 0 or "already complete" in last:
+            break
+        if "no urb-jax run" in last or "nothing to resume" in last:
+            proc = _start(out, exp_id, "--overwrite")
+            proc.communicate()
+            trial["restarted"] = True
             break
         trial["resume_error"] = last[:200]
     trial["resumes"] = resumes
@@ -173,11 +178,14 @@ def main() -> None:
 
 
 def _table(trials: dict, ref: dict) -> str:
-    rows = ["| trial | signal | at (s) | stopped in | exit | stop (s) | resumes | identical |",
+    rows = ["| trial | signal | at (s) | stopped in | exit | stop (s) | recovery | identical |",
             "|---|---|---|---|---|---|---|---|"]
     for t in trials.values():
+        how = "same command, --overwrite" if t.get("restarted") else f"{t['resumes']} x --resume"
+        if t["signal"] == "SIGKILL worker":
+            how = "none needed (day retried)"
         rows.append(f"| {t['id']} | {t['signal']} | {t['at_s']} | {t['phase']} | {t['exit']} | "
-                    f"{t.get('stop_s', '')} | {t['resumes']} | {t['digest'] == ref['digest']} |")
+                    f"{t.get('stop_s', '')} | {how} | {t['digest'] == ref['digest']} |")
     summary = []
     for kind, label in (("SIGKILL", "SIGKILL + resume"), ("SIGINT", "SIGINT + resume"),
                         ("SIGKILL worker", "SUMO worker killed mid-day")):

@@ -109,14 +109,16 @@ def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor
 class DayJournal:
     """A `DayExecutor` that stores every day it runs in folder/human_days.journal/ and reads back,
     instead of running, the days stored before it was made (a stopped run starting again; SUMO is
-    deterministic, so they are the days it would run). It never skips a day of its own: every
-    recorded day of a run is a day SUMO ran for it."""
+    deterministic for a day key, so they are the days it would run). With `reuse_repeats`, a day
+    that repeats one it ran itself is read back too: converged deterministic humans repeat their
+    days (saint_arnoult: 65 of 200 human days repeat an earlier one), each the same SUMO day."""
 
-    def __init__(self, inner: DayExecutor, folder: Path) -> None:
+    def __init__(self, inner: DayExecutor, folder: Path, reuse_repeats: bool = True) -> None:
         self.inner = inner
         self.dir = folder / JOURNAL_DIR
         self.config = getattr(inner, "config", None)
         self.stored = {p.stem for p in self.dir.glob("*.npz")} if self.dir.is_dir() else set()
+        self.reuse_repeats = reuse_repeats
         self.replayed = 0
 
     def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
@@ -134,6 +136,8 @@ class DayJournal:
             for i, day in zip(todo, days, strict=True):
                 save_day(self.dir / f"{keys[i]}.npz", day)
                 out[i] = day
+                if self.reuse_repeats:
+                    self.stored.add(keys[i])
         return [day for day in out if day is not None]
 
     def _read(self, key: str) -> DayResult | None:

@@ -220,7 +220,10 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     with _stops_cleanly(list(folders.values())), \
             _executor(executor, setup.hyb, folders[seeds[0]], executor_kind, ray_address) as ex:
         if human is None:
-            human = _simulate_human_phase(setup, DayJournal(ex, folders[seeds[0]]), env_seed, mode, progress)
+            journal = DayJournal(ex, folders[seeds[0]])
+            human = _simulate_human_phase(setup, journal, env_seed, mode, progress)
+            for s in seeds:  # repeated days of converged humans, each run once
+                configs[s]["human_phase_days_read_back"] = journal.replayed
         for folder in folders.values():
             save_human_phase(folder, human)
         t_human = time.perf_counter() - t0
@@ -264,6 +267,9 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
         raise UrbJaxError(f"{folder}: no urb-jax run '{exp_id}' here (no {CONFIG_FILE}). Fix: pass the id "
                           "of a run in --results-dir (`ls {results_dir}`), or the --results-dir it used.")
     config = json.loads((folder / CONFIG_FILE).read_text())
+    if "train_args" not in config:
+        raise UrbJaxError(f"{folder}: the run was stopped before its first SUMO day (or is not a train run): "
+                          "there is nothing to resume. Fix: run the same command again with --overwrite.")
     folders = [Path(results_dir) / name for name in config.get("group", [exp_id])]
     for f in folders:
         lock_run(f)

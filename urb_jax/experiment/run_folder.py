@@ -10,13 +10,14 @@ import os
 import platform
 import re
 import shutil
+import tempfile
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from urb_jax.core.atomic import write_bytes, write_json
+from urb_jax.core.atomic import umask, write_bytes, write_json
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.reporting.records import remove_parts, write_plots, write_run_metrics
 
@@ -88,7 +89,12 @@ def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = F
             raise ResultsExistError(f"{path}: exists but is not a urb-jax run (no {CONFIG_FILE}), so "
                                     "--overwrite will not remove it. Fix: pass another --id.")
         shutil.rmtree(path)
-    path.mkdir(parents=True)
+    for stale in Path(root).glob(f".{exp_id}.new-*"):  # ours, left by a kill inside this function
+        shutil.rmtree(stale, ignore_errors=True)
+    new = Path(tempfile.mkdtemp(prefix=f".{exp_id}.new-", dir=root))
+    os.chmod(new, 0o777 & ~umask())
+    write_json(new / CONFIG_FILE, {"status": "created"})  # replaced by the run's own before any SUMO day
+    new.rename(path)  # the folder appears with its exp_config.json: always a urb-jax run
     return path
 
 
