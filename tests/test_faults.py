@@ -232,3 +232,13 @@ def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses):  # no
     alive = [p for p in workers if Path(f"/proc/{p}").exists()
              and "zombie" not in Path(f"/proc/{p}/status").read_text()]
     assert not alive, alive
+
+
+def test_mode_sumo_checkpoints_stay_bounded(confs, tmp_path):  # noqa: F811
+    """--mode sumo wrote every SUMO day so far into each round's checkpoint (about 175 GB over a
+    mantes-sized run); only the hybrid refit reads them."""
+    import numpy as np
+
+    (out,) = _train(confs, tmp_path, "s", mode="sumo", stop_after_round=3)
+    with np.load(out.folder / "checkpoints" / "round_00003" / "sumo_days.npz") as z:
+        assert z["choices_0"].shape[0] == 0

@@ -144,7 +144,8 @@ class HybridTrainer:
     """Trains a seed group: `start` (fresh) or `resume`, `run_round` per round, then `test`.
 
     Holds the group's moving parts: the arrays (`state`), each seed's SUMO days so far (`samples`,
-    what the surrogate refits on), rounds.csv rows and the SUMO training days done."""
+    what the surrogate refits on; kept in mode hybrid only, so a `--mode sumo` checkpoint does not
+    grow with its thousands of SUMO days), rounds.csv rows and the SUMO training days done."""
 
     def __init__(self, g: Group, executor: DayExecutor, writers: list[RecordsWriter], bar: Progress) -> None:
         self.g, self.executor, self.writers, self.bar = g, executor, writers, bar
@@ -245,7 +246,8 @@ class HybridTrainer:
         pred = np.asarray(g.fns.predict_days(self.state.params, jnp.asarray(choices)))  # before the refit
         for i in range(g.S):
             res_i = results[i * g.P:(i + 1) * g.P]
-            self.samples[i] = self.samples[i] + SumoSample.from_days(choices[i], res_i)
+            if g.mode == "hybrid":  # only the refit reads them: other modes' checkpoints stay bounded
+                self.samples[i] = self.samples[i] + SumoSample.from_days(choices[i], res_i)
             record_days(self.writers[i], g.H + self.sumo_done, PHASE_TRAIN, choices[i], g.is_cav, res_i,
                         _take(days, i), g.cav_index)
         self.sumo_done += g.P
