@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numpy as np
+
 from urb_jax import __version__
 from urb_jax.algorithms.baselines import CavPolicy, make_baseline
 from urb_jax.algorithms.registry import load_algo_config
@@ -58,7 +60,7 @@ from urb_jax.experiment.run_folder import (
 from urb_jax.experiment.run_log import log_run_to, with_run_log
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.reporting.records import RecordsWriter, remove_parts
-from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoPool, run_day
+from urb_jax.sumo_bridge import DayExecutor, DayResult, InProcessExecutor, MemoExecutor, SumoPool, run_day
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
 TrainArgs = dict[str, Any]  # a train run's arguments as exp_config.json records them ("train_args")
@@ -436,6 +438,8 @@ def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task
     writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
     if day_fn is None:  # SUMO's warnings go to the run's sumo.log, not the terminal
         day_fn = functools.partial(run_day, log_file=folder / "sumo.log")
+    memo = MemoExecutor(_DayFnExecutor(day_fn))  # a repeated day (AON CAVs, frozen humans) runs once
+    day_fn = _one_day(memo)
     H, T = task.human_learning_episodes, task.training_eps
     if human_phase_from:
         day_fn = load_replay(Path(results_dir) / human_phase_from, config, scn.agent_id, H, day_fn)
@@ -443,9 +447,35 @@ def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task
     writer.close()
     metrics = write_outputs(folder, H, T)
     wall = time.perf_counter() - t0
-    mark_done(folder, config, wall_time_s=round(wall, 2))
+    mark_done(folder, config, wall_time_s=round(wall, 2), sumo_days_run=memo.simulated,
+              sumo_days_repeated=memo.reused)
     return RunResult(folder, metrics, wall, days=H + T + task.test_eps,
                      replayed_days=H if human_phase_from else 0)
+
+
+class _DayFnExecutor:
+    """A day function (`DayFn`) as a `DayExecutor`, so the one day cache can sit in front of it."""
+
+    def __init__(self, day_fn: DayFn) -> None:
+        self.day_fn = day_fn
+
+    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
+                 is_cav: np.ndarray | None = None) -> list[DayResult]:
+        masks = [None] * len(choices) if is_cav is None else list(is_cav)
+        return [self.day_fn(scenario, c, seed=int(s), is_cav=m) for c, s, m in zip(choices, seeds, masks,
+                                                                                     strict=True)]
+
+    def close(self) -> None:
+        pass
+
+
+def _one_day(executor: DayExecutor) -> DayFn:
+    """The `DayFn` of one-day batches on `executor`."""
+    def day(scenario: Scenario, choices: np.ndarray, *, seed: int, is_cav: np.ndarray | None = None
+            ) -> DayResult:
+        return executor.run_days(scenario, np.asarray(choices)[None], [seed],
+                                 None if is_cav is None else np.asarray(is_cav)[None])[0]
+    return day
 
 
 def _baseline_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvConfig, env_path: Path,
