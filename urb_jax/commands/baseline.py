@@ -36,10 +36,11 @@ def run(args: argparse.Namespace) -> int:
         human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
     )
     m = out.metrics
-    replayed = out.replayed_days
-    print(f"results: {out.folder}  ({out.wall_time_s:.1f} s, {out.days - replayed} SUMO days"
-          + (f" + {replayed} replayed)" if replayed else ")"))
-    no_cavs = json.loads((out.folder / "exp_config.json").read_text()).get("num_machines") == 0
+    config = json.loads((out.folder / "exp_config.json").read_text())
+    replayed = f", {out.replayed_days} human days replayed" if out.replayed_days else ""
+    print(f"results: {out.folder}  ({out.wall_time_s:.1f} s; {out.days} days: {config['sumo_days_run']} "
+          f"simulated in SUMO, {config['sumo_days_repeated']} repeating a day already simulated{replayed})")
+    no_cavs = config.get("num_machines") == 0
     for key in ("t_pre", "t_CAV", "t_HDV_test", "winrate", "cost_of_learning", "delta_V", "delta_L"):
         why = "  (no CAVs: ratio_machines makes none, a humans-only run)" if no_cavs else ""
         print(f"  {key:18s} {m[key]:.4f}" if m[key] == m[key] else f"  {key:18s} N/A{why}")
