@@ -1,7 +1,9 @@
 """Fault injection on a real run (issue #15): one short train run on the embedded network, killed
 with SIGKILL at N instants spread over its whole wall time (human days, calibration, rounds,
 checkpoint writes, test, the final merge and metrics), each resumed with `urb-jax train --resume`;
-then Ctrl-C (SIGINT to the process group, as a terminal sends it) at a few instants, and a SUMO
+then SIGKILL at four observed instants (a checkpoint being written, the test days, the merged
+records before the metrics, the metrics before `done`: a loaded machine moves phases in time),
+Ctrl-C (SIGINT to the process group, as a terminal sends it) at a few instants, and a SUMO
 worker killed mid-day. Each trial counts as identical when records.parquet and
 metrics/BenchmarkMetrics.csv equal the uninterrupted run's byte for byte.
 
@@ -89,11 +91,32 @@ def reference(out: Path) -> dict:
     return {"digest": _digest(ref), "wall": float((out / "ref_wall.txt").read_text()), "rounds": rounds}
 
 
-def kill_trial(out: Path, exp_id: str, at: float, sig: int, rounds: int) -> dict:
+# Kills at an observed instant rather than a time (a loaded machine moves the phases in time):
+# what the run folder shows just before the kill.
+EVENTS = {
+    "checkpoint being written": lambda f: any(p.is_dir() and not (p / "meta.json").is_file()
+                                              for p in (f / "checkpoints").glob("round_0000[1-9]")),
+    "test days": lambda f: (f / "checkpoints" / "round_00002" / "meta.json").is_file(),
+    "merged, before metrics": lambda f: (f / "records.parquet").is_file(),
+    "metrics written, before done": lambda f: (f / "metrics" / "BenchmarkMetrics.csv").is_file(),
+}
+
+
+def _wait_for(proc: subprocess.Popen, folder: Path, event: str) -> float:
+    t0 = time.perf_counter()
+    while proc.poll() is None and not EVENTS[event](folder):
+        time.sleep(0.005)
+    return time.perf_counter() - t0
+
+
+def kill_trial(out: Path, exp_id: str, at: float | str, sig: int, rounds: int) -> dict:
     folder = out / "runs" / exp_id
     shutil.rmtree(folder, ignore_errors=True)
     proc = _start(out, exp_id)
-    time.sleep(at)
+    if isinstance(at, str):  # an event
+        at = _wait_for(proc, folder, at)
+    else:
+        time.sleep(at)
     stopped_in = _phase(folder, rounds)
     t0 = time.perf_counter()
     if proc.poll() is None:
@@ -169,6 +192,14 @@ def main() -> None:
         print(f"{exp_id}: {t['signal']} at {t['at_s']} s in {t['phase']}: exit {t['exit']} after "
               f"{t['stop_s']} s, {t['resumes']} resume(s), identical {same}", flush=True)
         done_path.write_text(json.dumps(trials, indent=1))
+    for i, event in enumerate(EVENTS):
+        exp_id = f"event{i}"
+        if exp_id not in trials:
+            trials[exp_id] = kill_trial(out, exp_id, event, signal.SIGKILL, ref["rounds"])
+            trials[exp_id]["phase"] = f"{event}: {trials[exp_id]['phase']}"
+            t = trials[exp_id]
+            print(f"{exp_id}: SIGKILL at {t['phase']}: identical {t['digest'] == ref['digest']}", flush=True)
+            done_path.write_text(json.dumps(trials, indent=1))
     if "worker" not in trials:
         trials["worker"] = worker_kill_trial(out, 0.4 * ref["wall"])
         done_path.write_text(json.dumps(trials, indent=1))
@@ -187,7 +218,8 @@ def _table(trials: dict, ref: dict) -> str:
         rows.append(f"| {t['id']} | {t['signal']} | {t['at_s']} | {t['phase']} | {t['exit']} | "
                     f"{t.get('stop_s', '')} | {how} | {t['digest'] == ref['digest']} |")
     summary = []
-    for kind, label in (("SIGKILL", "SIGKILL + resume"), ("SIGINT", "SIGINT + resume"),
+    for kind, label in (("SIGKILL", "SIGKILL + resume (timed and at observed instants)"),
+                        ("SIGINT", "SIGINT + resume"),
                         ("SIGKILL worker", "SUMO worker killed mid-day")):
         group = [t for t in trials.values() if t["signal"] == kind]
         if group:
