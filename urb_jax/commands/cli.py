@@ -10,7 +10,7 @@ import sys
 from urb_jax import __version__
 from urb_jax.commands import COMMANDS
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.core.interrupt import EXIT_INTERRUPTED, InterruptedRunError, handle_interrupts
+from urb_jax.core.interrupt import InterruptedRunError, handle_interrupts, leave_interrupted
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,11 +35,9 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return int(args.func(args) or 0)
         except InterruptedRunError as exc:
-            print(f"urb-jax: {exc}", file=sys.stderr)
-            return EXIT_INTERRUPTED
+            leave_interrupted(str(exc))  # no interpreter teardown around an XLA call in flight
         except KeyboardInterrupt:
-            print("urb-jax: stopped by Ctrl-C.", file=sys.stderr)
-            return EXIT_INTERRUPTED
+            leave_interrupted("stopped by Ctrl-C.")
         except UrbJaxError as exc:
             print(f"urb-jax: error: {exc}", file=sys.stderr)
             return 2

@@ -13,10 +13,11 @@ import errno
 import multiprocessing
 import os
 import signal
-import sys
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
+from typing import NoReturn
 
 from urb_jax.core.errors import UrbJaxError
 
@@ -31,36 +32,92 @@ class DiskFullError(UrbJaxError):
     """No space left on the device a run writes to."""
 
 
+GRACE_S = 3.0  # after a first Ctrl-C, how long the main thread has to stop cleanly
 _presses = 0
+_stop_message: Callable[[], str] | None = None
 
 
-def _on_sigint(signum: int, frame: FrameType | None) -> None:
-    global _presses
-    _presses += 1
-    if _presses == 1:
-        print("\nurb-jax: stopping (Ctrl-C again to exit at once) ...", file=sys.stderr, flush=True)
-        raise KeyboardInterrupt
-    print("urb-jax: interrupted twice: exiting now.", file=sys.stderr, flush=True)
+def on_stop(message: Callable[[], str] | None) -> None:
+    """What a forced stop prints (the run's resume line); None: a plain line."""
+    global _stop_message
+    _stop_message = message
+
+
+def _hard_exit(why: str) -> NoReturn:
+    """Leave now, as a kill would (a run resumes from any instant): children first, no teardown
+    (an XLA computation may still be in flight, and interpreter teardown around it can crash)."""
+    text = why
+    if _stop_message is not None:
+        with contextlib.suppress(Exception):
+            text = f"{why} {_stop_message()}"
+    with contextlib.suppress(Exception):
+        os.write(2, f"urb-jax: {text}\n".encode())
     for child in multiprocessing.active_children():  # SUMO workers: never left behind
         with contextlib.suppress(OSError):
             os.kill(child.pid, signal.SIGKILL)  # type: ignore[arg-type]
     os._exit(EXIT_INTERRUPTED)
 
 
+def leave_interrupted(message: str) -> NoReturn:
+    """End the process after a handled Ctrl-C: the message, children killed, exit code 130."""
+    on_stop(None)
+    _hard_exit(message)
+    raise AssertionError  # _hard_exit does not return
+
+
+def _on_sigint(signum: int, frame: FrameType | None) -> None:
+    """The Python-level handler (runs in the main thread between bytecodes)."""
+    if _presses <= 1:
+        raise KeyboardInterrupt
+    _hard_exit("interrupted twice: exiting now.")
+
+
+def _watch(read_fd: int) -> None:
+    """Sees each SIGINT as the C handler writes it, even while the main thread is inside a long
+    jitted call where no Python handler can run: says so at once, exits on a second press, and
+    after GRACE_S forces the stop the main thread could not make."""
+    global _presses
+    first = None
+    while True:
+        try:
+            data = os.read(read_fd, 64)
+        except OSError:
+            return
+        if not data:
+            return
+        for sig in data:
+            if sig != signal.SIGINT:
+                continue
+            _presses += 1
+            if _presses == 1:
+                os.write(2, b"\nurb-jax: stopping (Ctrl-C again to exit at once) ...\n")
+                first = threading.Timer(GRACE_S, _hard_exit, ("stopped by Ctrl-C (forced: the run was "
+                                                              "inside a computation)."))
+                first.daemon = True
+                first.start()
+            else:
+                _hard_exit("interrupted twice: exiting now.")
+
+
 @contextlib.contextmanager
 def handle_interrupts() -> Iterator[None]:
-    """Install the two-press SIGINT handler for the block (main thread only; elsewhere a no-op)."""
+    """Install the Ctrl-C handling for the block (main thread only; elsewhere a no-op)."""
     global _presses
-    try:
-        previous = signal.signal(signal.SIGINT, _on_sigint)
-    except ValueError:  # not the main thread
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
+    previous = signal.signal(signal.SIGINT, _on_sigint)
+    previous_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
     _presses = 0
+    threading.Thread(target=_watch, args=(read_fd,), daemon=True, name="urb-jax-ctrl-c").start()
     try:
         yield
     finally:
+        signal.set_wakeup_fd(previous_fd)
         signal.signal(signal.SIGINT, previous)
+        os.close(write_fd)
 
 
 def no_space(exc: BaseException) -> bool:

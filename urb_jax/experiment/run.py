@@ -30,7 +30,7 @@ from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.configio import to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
-from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space
+from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import (
@@ -137,7 +137,9 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
 @contextlib.contextmanager
 def _stops_cleanly(folders: list[Path], resumable: bool = True) -> Iterator[None]:
     """Ctrl-C and a full disk end a train run with the message that says what is kept and how to
-    go on (`urb-jax train --resume`), instead of a traceback; the executor is closed by then."""
+    go on (`urb-jax train --resume`), instead of a traceback; the executor is closed by then. A
+    forced stop (Ctrl-C inside a long jitted call, or pressed twice) prints the same line."""
+    on_stop(lambda: _resume_hint(folders, resumable))
     try:
         yield
     except KeyboardInterrupt:
@@ -146,6 +148,8 @@ def _stops_cleanly(folders: list[Path], resumable: bool = True) -> Iterator[None
         if not no_space(exc):
             raise
         raise disk_full(folders[0].parent, f"({exc}) {_resume_hint(folders, resumable)}") from None
+    finally:
+        on_stop(None)
 
 
 def _resume_hint(folders: list[Path], resumable: bool) -> str:
