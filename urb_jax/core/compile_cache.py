@@ -54,6 +54,13 @@ def enable_compile_cache() -> Path | None:
     return path
 
 
+def disable_compile_cache() -> None:
+    """No persistent cache from here on in this process (the opt-out; tests); a cache directory
+    the user gave JAX itself stays."""
+    if jax.config.jax_compilation_cache_dir in _OWNED:
+        _use(None)
+
+
 _OWNED: set[str] = set()  # cache dirs set here (a user's own JAX setting is never replaced)
 
 

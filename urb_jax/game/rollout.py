@@ -10,6 +10,7 @@ A policy that ignores observations (the baselines) needs no order: `act_at_once`
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -78,7 +79,7 @@ def level_blocks(levels: tuple[np.ndarray, ...], n_cavs: int) -> tuple[LevelBloc
     sizes = np.array([len(lv) for lv in levels], np.int64)
     bounds = block_bounds(sizes, block_rows=max(n_cavs / 10, 1.0))
     blocks = []
-    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+    for lo, hi in itertools.pairwise(bounds):
         width = int(sizes[lo:hi].max())
         idx = np.zeros((hi - lo, width), np.int32)
         write = np.full((hi - lo, width), n_cavs, np.int32)
