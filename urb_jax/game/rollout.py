@@ -49,8 +49,9 @@ class LevelBlock(NamedTuple):
 
 
 def block_bounds(sizes: np.ndarray, max_blocks: int = MAX_BLOCKS, block_rows: float = 0.0) -> list[int]:
-    """Split points 0 = b_0 < ... < b_k = L (k <= max_blocks) of consecutive levels minimising the
-    padded rows sum((b_i+1 - b_i) * max(sizes[b_i:b_i+1])) + k * block_rows (dynamic programming).
+    """Split points 0 = b[0] < ... < b[k] = L (k <= max_blocks) of the levels minimising the padded
+    rows, sum over blocks of (b[i+1] - b[i]) * max(sizes[b[i]:b[i+1]]) + block_rows (dynamic
+    programming over (blocks, levels covered)).
 
     One block for every level wastes rows when level sizes differ (saint_arnoult, default
     observations: 86 and 2 CAVs); a few blocks keep the padded work near the real one."""
