@@ -9,7 +9,8 @@ one. The human phase is simulated once per network beforehand and reused (`human
 so the wall column is the training: calibration, the rounds, the test days.
 `--unrolled` adds a cold row with the replaced one-step-per-level loop, for the levels scaling.
 
-    python benchmarks/compile_time.py --out /tmp/compile_time [--unrolled] [--networks urb_grid]
+    python benchmarks/compile_time.py --out /tmp/compile_time [--unrolled] [--networks urb_grid] \
+        [--networks-dir ../shared/networks]
 """
 
 from __future__ import annotations
@@ -122,6 +123,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--networks", nargs="+", default=None)
+    ap.add_argument("--networks-dir", default=str(NETWORKS_DIR), help="where saint_arnoult is (URB networks)")
     ap.add_argument("--alg", default="iql_star")
     ap.add_argument("--train-days", type=int, default=700, help="one round of the default hybrid config")
     ap.add_argument("--unrolled", action="store_true", help="also the replaced unrolled loop (cold)")
@@ -132,14 +134,14 @@ def main() -> None:
         return
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    real = ["saint_arnoult"] if (NETWORKS_DIR / "saint_arnoult").is_dir() else []
+    real = ["saint_arnoult"] if (Path(a.networks_dir) / "saint_arnoult").is_dir() else []
     nets = a.networks or [*real, "urb_grid"]
     confs = env_configs(out)
     print(f"{a.alg}, --train-days {a.train_days}, human phase reused; {os.cpu_count()} CPUs, "
           f"load average {os.getloadavg()[0]:.1f}", flush=True)
     print(ROW.format(*HEADER), flush=True)
     for net in nets:
-        ndir = None if net == "urb_grid" else str(NETWORKS_DIR)
+        ndir = None if net == "urb_grid" else a.networks_dir
         base = {"alg": a.alg, "net": net, "networks_dir": ndir, "train_days": a.train_days,
                 "results": str(out / "results"), "unrolled": False}
         human = f"{net}_human"
