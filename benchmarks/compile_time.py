@@ -127,6 +127,8 @@ def main() -> None:
     ap.add_argument("--alg", default="iql_star")
     ap.add_argument("--train-days", type=int, default=700, help="one round of the default hybrid config")
     ap.add_argument("--unrolled", action="store_true", help="also the replaced unrolled loop (cold)")
+    ap.add_argument("--unrolled-max-levels", type=int, default=100,
+                    help="no unrolled row above this many levels (urb_grid's 141 take tens of minutes)")
     ap.add_argument("--out", default="/tmp/compile_time")
     a = ap.parse_args()
     if a.child:
@@ -151,9 +153,9 @@ def main() -> None:
         for label, conf in confs.items():
             cache = out / f"jax_{net}_{label.replace(' ', '_')}_{time.time_ns()}"
             rows = [("blocks", "cold", cache), ("blocks", "warm", cache)]
-            if a.unrolled:
-                rows.append(("unrolled", "cold", "off"))
             levels = levels_of(net, ndir, conf)
+            if a.unrolled and levels <= a.unrolled_max_levels:
+                rows.append(("unrolled", "cold", "off"))
             for loop, kind, where in rows:
                 spec = base | {"env_conf": conf, "human": human, "unrolled": loop == "unrolled",
                                "id": f"{net}_{label.replace(' ', '_')}_{loop}_{kind}_{time.time_ns()}"}
