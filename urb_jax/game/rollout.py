@@ -108,6 +108,12 @@ def act_by_levels(env: RoutingEnv, key: jax.Array, state: EnvState, policy: Poli
 
 def _act_block(env: RoutingEnv, key: jax.Array, state: EnvState, policy: Policy, block: LevelBlock,
                actions: jnp.ndarray) -> jnp.ndarray:
+    if len(block.idx) == 1:  # a lone level is never padded: one plain call (the old loop's program)
+        members = block.idx[0]
+        chosen = policy(jax.random.fold_in(key, block.first), env.observe(state, actions)[members],
+                        jnp.asarray(members))
+        return actions.at[members].set(chosen.astype(jnp.int32))
+
     def level(acts: jnp.ndarray, xs: tuple[jnp.ndarray, ...]) -> tuple[jnp.ndarray, None]:
         lv, idx, write = xs  # [], [M], [M]
         obs = env.observe(state, acts)  # [C, D]
@@ -115,8 +121,6 @@ def _act_block(env: RoutingEnv, key: jax.Array, state: EnvState, policy: Policy,
         return acts.at[write].set(chosen.astype(jnp.int32), mode="drop"), None
 
     xs = (block.first + jnp.arange(len(block.idx)), jnp.asarray(block.idx), jnp.asarray(block.write))
-    if len(block.idx) == 1:  # a lone level: no loop
-        return level(actions, jax.tree_util.tree_map(lambda x: x[0], xs))[0]
     return jax.lax.scan(level, actions, xs)[0]
 
 
