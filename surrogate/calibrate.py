@@ -18,7 +18,14 @@ import optax
 
 from urb_jax.city.scenario import Scenario
 from urb_jax.sumo_bridge.types import ARRIVED, DayResult
-from urb_jax.surrogate.model import Static, SurrogateConfig, build_static, init_params, predict, predict_jit
+from urb_jax.surrogate.model import (
+    Static,
+    SurrogateConfig,
+    build_static,
+    init_params,
+    predict,
+    predict_bucketed,
+)
 
 Params = dict[str, jax.Array]
 
@@ -108,7 +115,7 @@ def route_bias(params: Params, static: Static, sample: SumoSample, prior_days: f
     choosing routes whose SUMO time it underestimates. Correcting exactly the (agent, route)
     pairs SUMO has measured makes those routes look as they drove, while unseen routes keep the
     model's estimate (so the policy still tries them, and the next SUMO days measure them)."""
-    pred = np.asarray(predict_jit(without_bias(params), static, jnp.asarray(sample.choices, jnp.int32)))
+    pred = predict_bucketed(without_bias(params), static, sample.choices)  # [D, N], D grows each round
     res = np.where(sample.arrived, sample.travel_time - pred, 0.0)
     n, k = static.n, static.k
     sums = np.zeros((n, k))

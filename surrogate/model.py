@@ -273,3 +273,22 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
 
 
 predict_jit = jax.jit(predict)
+
+MIN_BUCKET = 8
+
+
+def bucket_size(n: int) -> int:
+    """The smallest power of two >= n (at least MIN_BUCKET): an array that grows by a few rows
+    every round is fed to a jitted function at this size, so it compiles once per doubling."""
+    return max(MIN_BUCKET, 1 << max(n - 1, 0).bit_length())
+
+
+def predict_bucketed(params: dict[str, jax.Array], static: Static, choices: np.ndarray) -> np.ndarray:
+    """`predict_jit` of D days of route indices [D, N] -> minutes [D, N], run at D padded to
+    `bucket_size(D)` (route-0 days, dropped): the trainer's growing set of SUMO days does not
+    recompile it every round. Days are independent; the padded width changes XLA's vectorised
+    loops, so a day's times can differ from an unpadded call's in the last bit (~1e-7 min)."""
+    d = choices.shape[0]
+    padded = np.zeros((bucket_size(d), static.n), np.int32)  # [B, N]
+    padded[:d] = choices
+    return np.asarray(predict_jit(params, static, jnp.asarray(padded)))[:d]

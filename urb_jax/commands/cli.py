@@ -9,6 +9,7 @@ import sys
 
 from urb_jax import __version__
 from urb_jax.commands import COMMANDS
+from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, handle_interrupts, leave_interrupted
 
@@ -31,6 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    enable_compile_cache()  # every command compiles once per machine, not once per process
     with handle_interrupts():
         try:
             return int(args.func(args) or 0)

@@ -28,6 +28,7 @@ from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.demand import scale_demand
 from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.city.scenario import Scenario, load_scenario
+from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.configio import to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop
@@ -202,6 +203,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     """Train every seed (sharing the human phase and the SUMO executor; groups of up to
     `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
     `human_phase_from`: reuse that earlier train run's human phase instead of simulating it."""
+    enable_compile_cache()
     seeds = seeds or [0]
     net = net or DEFAULT_NETWORK
     task_conf, alg_conf, env_conf, hybrid_conf = map(_resolved, (task_conf, alg_conf, env_conf, hybrid_conf))
@@ -268,6 +270,7 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
     """Continue results/<exp_id>/ (and the seeds trained together with it) from the group's newest
     checkpoint, with the recorded arguments (and the recorded SUMO executor unless `executor_kind`
     overrides it); one result per seed of the group."""
+    enable_compile_cache()
     folder = Path(results_dir) / check_exp_id(exp_id)
     if not (folder / CONFIG_FILE).is_file():
         raise UrbJaxError(f"{folder}: no urb-jax run '{exp_id}' here (no {CONFIG_FILE}). Fix: pass the id "
@@ -415,6 +418,7 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
                  drop_unroutable: bool = False) -> RunResult:
     """One baseline experiment in results/<exp_id>/ (`human_phase_from`: days 1..H replayed from
     that run's records instead of simulated)."""
+    enable_compile_cache()
     net = net or DEFAULT_NETWORK
     task, task_path = load_task_config(task_conf)
     if task_overrides:

@@ -1,0 +1,48 @@
+"""A tiny hybrid run on urb_grid with FakeDay for SUMO, in its own process (tests/test_compile.py
+runs it twice on one compile cache): `python tests/compile_cache_run.py OUT_DIR`."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fakeday import FakeDay
+
+from urb_jax.experiment.run import run_train
+
+HYBRID = {"train_days": 12, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
+          "sumo_updates": 1, "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2,
+          "calib_steps": 20, "refit_days": 4, "refit_steps": 5}
+IQL = {"agent_frames_per_batch": 2, "n_iters": 10, "num_epochs": 1, "minibatch_size": 64,
+       "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400}
+
+
+class FakeExecutor:
+    """DayExecutor on FakeDay."""
+
+    def __init__(self) -> None:
+        self.day = FakeDay()
+
+    def run_days(self, scenario, choices, seeds, is_cav=None):
+        seeds = np.broadcast_to(seeds, (len(choices),))
+        return [self.day(scenario, c, seed=int(s), is_cav=is_cav)
+                for c, s in zip(choices, seeds, strict=True)]
+
+    def close(self) -> None:
+        pass
+
+
+def main(out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "hyb.json").write_text(json.dumps(HYBRID))
+    (out / "iql.json").write_text(json.dumps(IQL))
+    run_train(alg="iql", exp_id="run", results_dir=str(out), progress=False, task_conf="test",
+              hybrid_conf=str(out / "hyb.json"), alg_conf=str(out / "iql.json"), executor=FakeExecutor())
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]))
