@@ -76,27 +76,24 @@ def _watch(read_fd: int) -> None:
     """Sees each SIGINT as the C handler writes it, even while the main thread is inside a long
     jitted call where no Python handler can run: says so at once, exits on a second press, and
     after GRACE_S forces the stop the main thread could not make."""
+    with os.fdopen(read_fd, "rb", buffering=0) as pipe:  # closed once the block ends (EOF)
+        while data := pipe.read(64):
+            _count_presses(data)
+
+
+def _count_presses(data: bytes) -> None:
     global _presses
-    first = None
-    while True:
-        try:
-            data = os.read(read_fd, 64)
-        except OSError:
-            return
-        if not data:
-            return
-        for sig in data:
-            if sig != signal.SIGINT:
-                continue
-            _presses += 1
-            if _presses == 1:
-                os.write(2, b"\nurb-jax: stopping (Ctrl-C again to exit at once) ...\n")
-                first = threading.Timer(GRACE_S, _hard_exit, ("stopped by Ctrl-C (forced: the run was "
-                                                              "inside a computation)."))
-                first.daemon = True
-                first.start()
-            else:
-                _hard_exit("interrupted twice: exiting now.")
+    for sig in data:
+        if sig != signal.SIGINT:
+            continue
+        _presses += 1
+        if _presses > 1:
+            _hard_exit("interrupted twice: exiting now.")
+        os.write(2, b"\nurb-jax: stopping (Ctrl-C again to exit at once) ...\n")
+        force = threading.Timer(GRACE_S, _hard_exit, ("stopped by Ctrl-C (forced: the run was inside "
+                                                      "a computation).",))
+        force.daemon = True
+        force.start()
 
 
 @contextlib.contextmanager
