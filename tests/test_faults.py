@@ -55,7 +55,7 @@ def test_a_run_stopped_in_its_human_phase_resumes_to_the_same_results(confs, tmp
         _train(confs, tmp_path, "k", FakeExecutor(fail_on_call=5))  # human day 5
     folder = tmp_path / "k"
     assert json.loads((folder / "exp_config.json").read_text())["status"] == "running"
-    assert 0 < len(list((folder / JOURNAL_DIR).glob("*.npz"))) <= 4  # a repeated day is stored once
+    assert 0 < len(list((folder / JOURNAL_DIR).rglob("*.npz"))) <= 4  # a repeated day is stored once
     ex = FakeExecutor()
     (out,) = resume_train("k", results_dir=str(tmp_path), progress=False, executor=ex)
     assert sum(len(b) for b, _ in ex.batches) <= reference["days"] - 4  # days 1-4 (and repeats) read back
@@ -211,7 +211,7 @@ def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses):  # no
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     journal = tmp_path / "k" / JOURNAL_DIR
     deadline = time.monotonic() + 240
-    while not (journal.is_dir() and any(journal.glob("*.npz"))):  # SUMO days are running
+    while not (journal.is_dir() and any(journal.rglob("*.npz"))):  # SUMO days are running
         assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.poll() else ""
         time.sleep(0.2)
     workers = [int(p) for p in subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,

@@ -81,7 +81,7 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     assert (phases.loc[1:H] == "human").all() and (phases.loc[H + 1:H + T] == "train").all()
     assert (phases.loc[H + T + 1:] == "test").all()
     # Every recorded day is a day the executor ran, in order (calibration days are not recorded);
-    # a human day that repeats an earlier one exactly is that SUMO day, read back (DayJournal).
+    # a human day that repeats an earlier one exactly is that SUMO day, read back (human_phase.journal).
     ran = [c for batch, _ in ex.batches for c in batch]
     wide = rec.pivot(index="day", columns="agent", values="action").sort_index()
     recorded = wide.to_numpy()

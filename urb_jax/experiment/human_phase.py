@@ -14,8 +14,8 @@ simulation); later calls go to the wrapped day function.
   `train_humans`, checks the replayed human state against the saved one, and takes the
   calibration days from the file.
 
-A run's own human phase is journaled (`DayJournal`): its SUMO days are also kept on disk in the
-run's first folder, so a run stopped before its first checkpoint resumes by simulating the phase
+A run's own human phase is journaled (`journal`: the one day cache, on disk in the run's first
+folder), so a run stopped before its first checkpoint resumes by simulating the phase
 again with every day already done read back (SUMO days are deterministic: the same records). The
 journal goes when every folder of the run is done (`drop_journal`).
 """
@@ -23,7 +23,6 @@ journal goes when every folder of the run is done (`drop_journal`).
 from __future__ import annotations
 
 import json
-import logging
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,15 +42,11 @@ from urb_jax.experiment.protocol import DayFn, train_humans
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.humans import HumanState
 from urb_jax.reporting.records import DayRecord, read_records
-from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult
-from urb_jax.sumo_bridge.batch import as_batch
-from urb_jax.sumo_bridge.keys import day_key
-from urb_jax.sumo_bridge.memo import load_day, save_day
+from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, MemoExecutor
 from urb_jax.surrogate import build_static, init_params
 from urb_jax.surrogate.data import make_choices
 
 HUMAN_FILE = "human_phase.npz"
-log = logging.getLogger(__name__)
 JOURNAL_DIR = "human_days.journal"  # in the run's first folder
 JOURNAL_KEY = "human_days_journal"  # exp_config.json: the folder that holds the journal
 # exp_config keys that must agree for the human phase to be the same.
@@ -106,52 +101,11 @@ def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor
                       np.stack([r.status == ARRIVED for r in results]))
 
 
-class DayJournal:
-    """A `DayExecutor` that stores every day it runs in folder/human_days.journal/ and reads back,
-    instead of running, the days stored before it was made (a stopped run starting again; SUMO is
-    deterministic for a day key, so they are the days it would run). With `reuse_repeats`, a day
-    that repeats one it ran itself is read back too: converged deterministic humans repeat their
-    days (saint_arnoult: 65 of 200 human days repeat an earlier one), each the same SUMO day."""
-
-    def __init__(self, inner: DayExecutor, folder: Path, reuse_repeats: bool = True) -> None:
-        self.inner = inner
-        self.dir = folder / JOURNAL_DIR
-        self.config = getattr(inner, "config", None)
-        self.stored = {p.stem for p in self.dir.glob("*.npz")} if self.dir.is_dir() else set()
-        self.reuse_repeats = reuse_repeats
-        self.replayed = 0
-
-    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
-                 is_cav: np.ndarray | None = None) -> list[DayResult]:
-        batch = as_batch(choices, seeds, is_cav)
-        keys = [day_key(scenario, c, s, m, self.config)
-                for c, s, m in zip(batch.choices, batch.seeds, batch.cavs, strict=True)]
-        out = [self._read(k) for k in keys]
-        todo = [i for i, day in enumerate(out) if day is None]
-        self.replayed += len(keys) - len(todo)
-        if todo:
-            masks = None if batch.cavs[0] is None else np.stack([batch.cavs[i] for i in todo])
-            days = self.inner.run_days(scenario, batch.choices[todo], [batch.seeds[i] for i in todo],
-                                       is_cav=masks)
-            for i, day in zip(todo, days, strict=True):
-                save_day(self.dir / f"{keys[i]}.npz", day)
-                out[i] = day
-                if self.reuse_repeats:
-                    self.stored.add(keys[i])
-        return [day for day in out if day is not None]
-
-    def _read(self, key: str) -> DayResult | None:
-        if key not in self.stored:
-            return None
-        try:
-            return load_day(self.dir / f"{key}.npz")
-        except Exception as exc:  # a damaged entry (a kill mid-write cannot make one: writes are atomic)
-            log.warning("journal entry %s is unreadable (%s): running the day again",
-                        self.dir / f"{key}.npz", exc)
-            return None
-
-    def close(self) -> None:
-        self.inner.close()
+def journal(executor: DayExecutor, folder: Path) -> MemoExecutor:
+    """`executor` behind the one day cache, stored in folder/human_days.journal/: a stopped run
+    starting again reads back the days it already ran, and a day that repeats one already run
+    (converged deterministic humans: saint_arnoult, 66 of 208 days) is that SUMO day, read back."""
+    return MemoExecutor(executor, store_dir=folder / JOURNAL_DIR)
 
 
 def drop_journal(root: Path, config: dict[str, Any]) -> None:

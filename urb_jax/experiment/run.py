@@ -36,9 +36,9 @@ from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import (
     JOURNAL_KEY,
-    DayJournal,
     HumanPhase,
     drop_journal,
+    journal,
     load_replay,
     reuse_human_phase,
     run_human_phase,
@@ -228,10 +228,10 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     with _stops_cleanly(list(folders.values())), \
             _executor(executor, setup.hyb, folders[seeds[0]], executor_kind, ray_address) as ex:
         if human is None:
-            journal = DayJournal(ex, folders[seeds[0]])
-            human = _simulate_human_phase(setup, journal, env_seed, mode, progress)
+            days = journal(ex, folders[seeds[0]])
+            human = _simulate_human_phase(setup, days, env_seed, mode, progress)
             for s in seeds:  # repeated days of converged humans, each run once
-                configs[s]["human_phase_days_read_back"] = journal.replayed
+                configs[s]["human_phase_days_read_back"] = days.reused
         for folder in folders.values():
             save_human_phase(folder, human)
         t_human = time.perf_counter() - t0
@@ -316,8 +316,7 @@ def _human_phase_again(setup: TrainSetup, args: TrainArgs, config: dict[str, Any
         return reuse_human_phase(results_dir / config["human_phase_from"], config, setup.scn, setup.task,
                                  setup.hyb, args["env_seed"], calibrate=args["mode"] != "sumo")
     holder = results_dir / config.get(JOURNAL_KEY, config["group"][0])
-    journal = DayJournal(executor, holder)
-    return _simulate_human_phase(setup, journal, args["env_seed"], args["mode"], progress)
+    return _simulate_human_phase(setup, journal(executor, holder), args["env_seed"], args["mode"], progress)
 
 
 def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | None) -> dict[str, Any]:
