@@ -83,14 +83,20 @@ def test_drop_leaves_out_exactly_the_unroutable_agents(broken_grid):
             intact.route_edge_ids(j, k) for k in range(intact.k)]
 
 
-def test_cache_keys_differ_with_the_choice(broken_grid, tmp_path, monkeypatch):
+def test_cache_keys_differ_with_the_choice_where_it_matters(broken_grid, tmp_path, monkeypatch):
     monkeypatch.setenv("URB_JAX_CACHE", str(tmp_path / "cache"))
     load_scenario(str(broken_grid), drop_unroutable=True)
     with pytest.raises(NetworkError, match="no route"):  # not served from the dropped entry
         load_scenario(str(broken_grid))
-    load_scenario("urb_grid")
-    load_scenario("urb_grid", drop_unroutable=True)  # nothing to drop, still its own entry
-    assert len(list((cache_dir() / "scenarios").glob("urb_grid-*.npz"))) == 3
+    plain = load_scenario("urb_grid")
+
+    def no_build(*args, **kwargs):
+        raise AssertionError("rebuilt although the cache holds the same scenario")
+
+    monkeypatch.setattr(scenario_module, "build_scenario", no_build)
+    dropped = load_scenario("urb_grid", drop_unroutable=True)  # nothing to drop: the plain entry serves
+    assert dropped.agent_id.tolist() == plain.agent_id.tolist() and dropped.dropped_unroutable.size == 0
+    assert len(list((cache_dir() / "scenarios").glob("urb_grid-*.npz"))) == 2  # broken_grid + plain
     cached = load_scenario(str(broken_grid), drop_unroutable=True)
     assert cached.dropped_unroutable.tolist() == _unroutable_ids(broken_grid)
 

@@ -214,16 +214,12 @@ def load_scenario(
     """
     params = route_params or RouteParams()
     files = find_network(network, networks_dir)
-    key = _cache_key(files, params, env_seed, drop_unroutable)
-    cache_file = cache_dir() / "scenarios" / f"{files.name}-{key}.npz"
-    scn = None
-    if use_cache and cache_file.is_file():
-        try:
-            # The key hashes the files' contents, so an identical copy elsewhere shares the entry;
-            # SUMO must still read the copy that was asked for, not the one that built the entry.
-            scn = replace(_load(cache_file), net_file=str(files.net))
-        except Exception as exc:  # a stale or damaged cache is rebuilt, never trusted
-            log.warning("scenario cache %s is unreadable (%s): rebuilding it", cache_file, exc)
+    cache_file = _cache_file(files, params, env_seed, drop_unroutable)
+    scn = _cached(cache_file, files) if use_cache else None
+    if scn is None and use_cache:
+        # Where no agent is unroutable, both drop choices build the same scenario: either entry serves.
+        other = _cached(_cache_file(files, params, env_seed, not drop_unroutable), files)
+        scn = other if other is not None and other.dropped_unroutable.size == 0 else None
     if scn is None:
         scn = build_scenario(files, params, env_seed, workers=workers, drop_unroutable=drop_unroutable)
         if use_cache:
@@ -232,6 +228,24 @@ def load_scenario(
         log.warning("%s: left out %d agent(s) whose OD pair has no route (--drop-unroutable): ids %s",
                     files.name, scn.dropped_unroutable.size, " ".join(map(str, scn.dropped_unroutable)))
     return scn
+
+
+def _cache_file(files: NetworkFiles, params: RouteParams, env_seed: int, drop_unroutable: bool) -> Path:
+    key = _cache_key(files, params, env_seed, drop_unroutable)
+    return cache_dir() / "scenarios" / f"{files.name}-{key}.npz"
+
+
+def _cached(cache_file: Path, files: NetworkFiles) -> Scenario | None:
+    """The cached Scenario, or None when absent or unreadable (a damaged entry is rebuilt, never trusted)."""
+    if not cache_file.is_file():
+        return None
+    try:
+        # The key hashes the files' contents, so an identical copy elsewhere shares the entry;
+        # SUMO must still read the copy that was asked for, not the one that built the entry.
+        return replace(_load(cache_file), net_file=str(files.net))
+    except Exception as exc:
+        log.warning("scenario cache %s is unreadable (%s): rebuilding it", cache_file, exc)
+        return None
 
 
 def build_scenario(
