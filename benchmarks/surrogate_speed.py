@@ -74,18 +74,23 @@ def main() -> None:
     ap.add_argument("--nets", default="urb_grid,saint_arnoult,provins,ingolstadt_custom")
     ap.add_argument("--batches", default="1,64,1024")
     ap.add_argument("--seconds", type=float, default=2.0, help="timing window per measurement")
+    ap.add_argument("--no-sumo", action="store_true",
+                    help="skip the SUMO day (a machine without SUMO, e.g. a GPU box); its columns read n/a")
+    ap.add_argument("--drop-unroutable", action="store_true",
+                    help="leave out agents without a route where there are any (mantes_la_jolie)")
     args = ap.parse_args()
-    print(f"JAX {jax.__version__} on {jax.devices()[0].platform}, {os.cpu_count()} CPU cores")
+    print(f"JAX {jax.__version__} on {jax.devices()[0].platform} ({jax.devices()[0].device_kind}), "
+          f"{os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.1f}")
     header = ("| network | agents | B | surrogate days/s | plain BPR days/s | ratio | "
               "SUMO s/day | speed-up vs SUMO |")
     rows = [header, "|---|---|---|---|---|---|---|---|"]
     grad_rows = ["| network | B | prob. input + grad days/s |", "|---|---|---|"]
     for net in args.nets.split(","):
-        scn = load_scenario(net, networks_dir=args.networks_dir)
+        scn = load_scenario(net, networks_dir=args.networks_dir, drop_unroutable=args.drop_unroutable)
         static = build_static(scn, SurrogateConfig())
         params = init_params(static)
         free = np.asarray(scn.fft).argmin(axis=1)
-        sumo_s, sumo_name = sumo_seconds(scn, free)
+        sumo_s, sumo_name = (float("nan"), "n/a") if args.no_sumo else sumo_seconds(scn, free)
         base = plain_bpr(scn)
         rng = np.random.default_rng(0)
         for b in [int(x) for x in args.batches.split(",")]:

@@ -103,16 +103,28 @@ def main() -> None:
     parser.add_argument("--skip", nargs="*", default=[],
                         help="NETWORK:ALG:B or NETWORK:ALG:CONFIG:B combinations to leave out")
     parser.add_argument("--networks-dir", default=str(NETWORKS_DIR) if NETWORKS_DIR.is_dir() else None)
+    parser.add_argument("--calib-days", type=int, default=40,
+                        help="SUMO days the surrogate is fitted on (0: uncalibrated, same cost; for timing "
+                             "networks whose SUMO days are slow)")
+    parser.add_argument("--surrogate-params", default=None,
+                        help="folder of fitted surrogate parameters (<network>.npz): read when there, "
+                             "else fitted and written (to time the same surrogate on a machine without SUMO)")
+    parser.add_argument("--drop-unroutable", action="store_true",
+                        help="leave out agents without a route where there are any (mantes_la_jolie)")
     args = parser.parse_args()
-    print(f"jax {jax.__version__} on {jax.devices()[0].platform} ({os.cpu_count()} CPUs); configs "
+    print(f"jax {jax.__version__} on {jax.devices()[0].platform} {jax.devices()[0].device_kind} "
+          f"({os.cpu_count()} CPUs); configs "
           f"{' '.join(args.config)}{'' if args.net is None else ' with networks ' + args.net}; "
           f"{'BPR stand-in' if args.standin else 'calibrated surrogate'}; 40% CAVs; "
           f"load average {os.getloadavg()[0]:.1f}")
     print(f"{'network':18s} {'alg':10s} {'config':8s} {'B':>3s} {'CAVs':>5s} {'depth':>5s} {'compile s':>9s} "
           f"{'days':>6s} {'run s':>7s} {'days/s':>8s}")
     for net in args.networks:
-        scn = load_scenario(net, networks_dir=None if net == "urb_grid" else args.networks_dir)
-        tt = bpr_travel_time_fn(scn) if args.standin else surrogate_travel_fn(scn)
+        scn = load_scenario(net, networks_dir=None if net == "urb_grid" else args.networks_dir,
+                            drop_unroutable=args.drop_unroutable)
+        params_file = None if args.surrogate_params is None else Path(args.surrogate_params) / f"{net}.npz"
+        tt = bpr_travel_time_fn(scn) if args.standin else surrogate_travel_fn(
+            scn, n_days=args.calib_days, params_file=params_file)
         is_cav = draw_cavs(42, scn.n_agents, 0.4, agent_id=scn.agent_id, method=args.cav_draw)
         envs = {b: RoutingEnv(scn, is_cav, tt, reward_coefficients=behaviour_coefficients(b))
                 for b in ("selfish", "cooperative")}
