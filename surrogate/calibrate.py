@@ -107,6 +107,16 @@ def without_bias(params: Params) -> Params:
     return {k: v for k, v in params.items() if k != "route_bias"}
 
 
+def fit_with_bias(start: Params, static: Static, sub: SumoSample, fit: FitConfig, full: SumoSample,
+                  prior_days: float | None) -> Params:
+    """Gradient fit of the smooth model on `sub`, then the per-route residual (`route_bias`) on every
+    day of `full`; `prior_days` None: no residual correction (zeros)."""
+    fitted = fit_params(without_bias(start), static, sub, fit)
+    bias = (route_bias(fitted, static, full, prior_days) if prior_days is not None
+            else jnp.zeros((static.n, static.k), jnp.float32))
+    return {**fitted, "route_bias": bias}
+
+
 def route_bias(params: Params, static: Static, sample: SumoSample, prior_days: float) -> jax.Array:
     """[N, K] minutes: each (agent, route)'s mean SUMO residual over the days it was driven,
     shrunk toward 0 as `count / (count + prior_days)`.

@@ -80,8 +80,9 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     phases = rec.groupby("day")["phase"].first()
     assert (phases.loc[1:H] == "human").all() and (phases.loc[H + 1:H + T] == "train").all()
     assert (phases.loc[H + T + 1:] == "test").all()
-    # Every recorded day is a day the executor ran, in order (calibration days are not recorded);
-    # a human day that repeats an earlier one exactly is that SUMO day, read back (human_phase.journal).
+    # Every recorded day is a day the executor ran, in order, after the 2 varied calibration days
+    # (one batch, not recorded); a day that repeats an earlier one exactly (a human day or a varied
+    # one) is that SUMO day, read back (human_phase.journal).
     ran = [c for batch, _ in ex.batches for c in batch]
     wide = rec.pivot(index="day", columns="agent", values="action").sort_index()
     recorded = wide.to_numpy()
@@ -91,11 +92,13 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     scn = load_scenario("urb_grid")
     pos = {a: i for i, a in enumerate(scn.agent_id)}
     col_pos = np.array([pos[a] for a in agent_ids])
-    distinct_human = list(dict.fromkeys(map(tuple, recorded[:H])))  # first appearances, in order
-    # then up to 2 varied calibration days (one equal to a human day is read back too); AON last
-    human_ran, rest, aon_day = ran[:len(distinct_human)], ran[-1 - (len(recorded) - H):-1], ran[-1]
-    assert len(ran) - len(human_ran) - len(rest) - 1 == 2 + H - len(distinct_human) - \
-        cfg["human_phase_days_read_back"]
+    n_varied = len(ex.batches[0][0])
+    varied = {tuple(c[col_pos]) for c in ex.batches[0][0]}
+    distinct_human = [d for d in dict.fromkeys(map(tuple, recorded[:H])) if d not in varied]  # in order
+    human_ran = ran[n_varied:n_varied + len(distinct_human)]
+    rest, aon_day = ran[n_varied + len(distinct_human):-1], ran[-1]  # CAV days; AON last
+    assert len(rest) == len(recorded) - H
+    assert cfg["human_phase_days_read_back"] == (2 - n_varied) + H - len(distinct_human)
     np.testing.assert_array_equal(np.array(distinct_human), np.stack(human_ran)[:, col_pos])
     np.testing.assert_array_equal(recorded[H:], np.stack(rest)[:, col_pos])
     # t_CAV recomputed independently from the executor's test-day travel times.

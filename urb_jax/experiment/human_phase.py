@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -38,12 +40,14 @@ from urb_jax.core.atomic import write_npz
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.hybrid.plan import HybridConfig
-from urb_jax.experiment.protocol import DayFn, train_humans
+from urb_jax.experiment.protocol import DayFn, train_humans, train_humans_on_model
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.humans import HumanState
+from urb_jax.reporting.metrics import PRE_WINDOW
 from urb_jax.reporting.records import DayRecord, read_records
 from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, MemoExecutor
-from urb_jax.surrogate import build_static, init_params
+from urb_jax.surrogate import build_static, init_params, predict
+from urb_jax.surrogate.calibrate import FitConfig, SumoSample, fit_with_bias
 from urb_jax.surrogate.data import make_choices
 
 HUMAN_FILE = "human_phase.npz"
@@ -56,7 +60,9 @@ MUST_MATCH = ("network", "env_seed", "human_model", "human_alpha", "human_beta",
               "num_samples", "num_agents")
 # A train run's also: the phase's length and the calibration days it recorded.
 TRAIN_MUST_MATCH = (*MUST_MATCH, "human_learning_episodes", "hybrid_calib_human_days",
-                    "hybrid_calib_varied_days")
+                    "hybrid_calib_varied_days", "human_surrogate_days")
+SURROGATE_KEY = "human_surrogate_days"  # exp_config.json: leading human days run on the surrogate
+ABSENT = {SURROGATE_KEY: 0}  # what a key missing from an older run's exp_config.json meant
 # The record columns a replay returns (a DayResult's fields, `action` checked against today's choices).
 FIELDS = ("action", "travel_time", "route_length", "speed", "duration", "time_loss", "depart_delay", "status")
 
@@ -66,39 +72,78 @@ class HumanPhase:
     """What the shared human phase leaves behind (one per run, shared by every seed)."""
 
     humans: HumanState
-    records: list[DayRecord]
+    records: list[DayRecord]  # its SUMO days (days surrogate_days + 1 .. H)
     calib_choices: np.ndarray  # [D, N]
     calib_times: np.ndarray  # [D, N] minutes
     calib_arrived: np.ndarray  # [D, N]
+    surrogate_days: int = 0  # leading human days run on the surrogate (not in `records`)
+    switch_humans: HumanState | None = None  # the knowledge after them (None: no surrogate days)
+    surrogate_means: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))  # [S] minutes
+
+
+def surrogate_human_days(cfg: HybridConfig, human_days: int, calibrate: bool) -> int:
+    """How many leading human days run on the surrogate: `human_surrogate_days`, leaving at least
+    t_pre's window (the last PRE_WINDOW days) in SUMO; none without calibration (mode sumo) or
+    without varied calibration days to fit the surrogate on."""
+    if not calibrate or cfg.calib_varied_days == 0:
+        return 0
+    return max(0, min(cfg.human_surrogate_days, human_days - PRE_WINDOW))
 
 
 def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor: DayExecutor, env_seed: int,
                     bar: Progress, calibrate: bool = True) -> HumanPhase:
-    """H SUMO days of human learning, then `calib_varied_days` varied SUMO days for calibration."""
+    """The `calib_varied_days` varied SUMO days (run together), then H days of human learning: the
+    first `surrogate_human_days` on the surrogate fitted to the varied days, the rest in SUMO."""
     records: list[DayRecord] = []
+    hp, H = task.human_params(), task.human_learning_episodes
+    varied, varied_results = _varied_days(scn, cfg, executor, env_seed, bar) if calibrate else ([], [])
+    S = surrogate_human_days(cfg, H, calibrate)
+    switch, means = None, np.zeros(0, np.float32)
+    if S:
+        model = _human_model(scn, cfg, varied, varied_results)
+        switch, means = train_humans_on_model(scn, hp, S, env_seed=env_seed, travel_times=model)
+        bar.update(S, "human/surrogate")
 
     def simulate(day: int, phase: str, choices: np.ndarray, is_cav: np.ndarray) -> DayResult:
         res = executor.run_days(scn, choices[None], [env_seed])[0]
         bar.update(1, f"{phase}/SUMO")
         return res
 
-    humans = train_humans(scn, task.human_params(), task.human_learning_episodes, env_seed=env_seed,
-                          simulate=simulate, sink=records.append)
+    humans = train_humans(scn, hp, H, env_seed=env_seed, simulate=simulate, sink=records.append,
+                          first_day=S + 1, humans=switch)
     tail = records[-cfg.calib_human_days:] if calibrate and cfg.calib_human_days > 0 else []
-    choices = [r.choices for r in tail]
-    results = [r.result for r in tail]
-    if calibrate and cfg.calib_varied_days > 0:
-        static = build_static(scn)
-        varied, _ = make_choices(scn, static, init_params(static), cfg.calib_varied_days, seed=env_seed)
-        choices += list(varied)
-        results += executor.run_days(scn, varied, [env_seed] * len(varied))
-        bar.update(len(varied), "calibration/SUMO")
+    choices = [r.choices for r in tail] + varied
+    results = [r.result for r in tail] + varied_results
     if not choices:
         z = np.zeros((0, scn.n_agents))
         return HumanPhase(humans, records, z.astype(np.int32), z.astype(np.float32), z.astype(bool))
     return HumanPhase(humans, records, np.stack(choices).astype(np.int32),
                       np.stack([r.travel_time for r in results]).astype(np.float32),
-                      np.stack([r.status == ARRIVED for r in results]))
+                      np.stack([r.status == ARRIVED for r in results]), S, switch, means)
+
+
+def _varied_days(scn: Scenario, cfg: HybridConfig, executor: DayExecutor, env_seed: int, bar: Progress
+                 ) -> tuple[list[np.ndarray], list[DayResult]]:
+    """The calibration's varied SUMO days (free-flow, random, equilibrium-like, mixed choices)."""
+    if cfg.calib_varied_days == 0:
+        return [], []
+    static = build_static(scn)
+    varied, _ = make_choices(scn, static, init_params(static), cfg.calib_varied_days, seed=env_seed)
+    results = executor.run_days(scn, varied, [env_seed] * len(varied))
+    bar.update(len(varied), "calibration/SUMO")
+    return list(varied), list(results)
+
+
+def _human_model(scn: Scenario, cfg: HybridConfig, choices: list[np.ndarray], results: list[DayResult]
+                 ) -> Callable[[jnp.ndarray], jnp.ndarray]:
+    """The surrogate fitted to the varied days, as the travel-time model of the humans' first days."""
+    static = build_static(scn)
+    sample = SumoSample(np.stack(choices).astype(np.int32),
+                        np.stack([r.travel_time for r in results]).astype(np.float32),
+                        np.stack([r.status == ARRIVED for r in results]))
+    params = fit_with_bias(init_params(static), static, sample, FitConfig(steps=cfg.calib_steps), sample,
+                           cfg.bias_prior)
+    return partial(predict, params, static)
 
 
 def journal(executor: DayExecutor, folder: Path) -> MemoExecutor:
@@ -121,23 +166,28 @@ def drop_journal(root: Path, config: dict[str, Any]) -> None:
 
 
 def save_human_phase(folder: Path, human: HumanPhase) -> None:
-    """human_phase.npz: the learned human state and the calibration days (atomic)."""
+    """human_phase.npz: the learned human state, the calibration days and, after surrogate human
+    days, the knowledge they left (atomic)."""
+    switch = {} if human.switch_humans is None else {
+        f"switch_{k}": np.asarray(v) for k, v in human.switch_humans._asdict().items()}
     write_npz(folder / HUMAN_FILE, calib_choices=human.calib_choices, calib_times=human.calib_times,
-              calib_arrived=human.calib_arrived,
+              calib_arrived=human.calib_arrived, surrogate_means=human.surrogate_means, **switch,
               **{f"humans_{k}": np.asarray(v) for k, v in human.humans._asdict().items()})
 
 
 class ReplayHumanPhase:
-    """A day function whose first `days` calls are the recorded days of an earlier run."""
+    """A day function whose first calls are the recorded days `first_day`..`days` of an earlier run."""
 
-    def __init__(self, records: pd.DataFrame, agent_id: np.ndarray, days: int, day_fn: DayFn) -> None:
+    def __init__(self, records: pd.DataFrame, agent_id: np.ndarray, days: int, day_fn: DayFn,
+                 first_day: int = 1) -> None:
         self.days = days
         self.day_fn = day_fn
-        self.calls = 0
+        self.calls = first_day - 1
         rec = records[records["day"] <= days]
         have = sorted(rec["day"].unique())
-        if have != list(range(1, days + 1)):
-            raise UrbJaxError(f"human phase replay needs days 1..{days}; the source run has {len(have)}.")
+        if have != list(range(first_day, days + 1)):
+            raise UrbJaxError(f"human phase replay needs days {first_day}..{days}; the source run has "
+                              f"{len(have)} of them.")
         self._wide = {f: rec.pivot(index="day", columns="agent", values=f).reindex(columns=agent_id)
                       for f in FIELDS}
         if self._wide["action"].isna().any().any():
@@ -185,8 +235,8 @@ def _checked_source(source: Path, config: dict[str, Any], keys: tuple[str, ...])
         raise UrbJaxError(f"{cfg_path}: not found. Fix: --human-phase-from takes the experiment id of an "
                           "earlier run in --results-dir.")
     src = json.loads(cfg_path.read_text())
-    diff = [f"{k} (source {src.get(k)!r}, this run {config.get(k)!r})" for k in keys
-            if src.get(k) != config.get(k)]
+    diff = [f"{k} (source {src.get(k, ABSENT.get(k))!r}, this run {config.get(k)!r})" for k in keys
+            if src.get(k, ABSENT.get(k)) != config.get(k)]
     if diff:
         raise UrbJaxError(f"{cfg_path}: its human phase differs from this run's: {'; '.join(diff)}. "
                           "Fix: reuse a run with the same network, configs and env seed, or drop "
@@ -194,46 +244,65 @@ def _checked_source(source: Path, config: dict[str, Any], keys: tuple[str, ...])
     return src
 
 
-def _replay(source: Path, agent_id: np.ndarray, days: int, day_fn: DayFn) -> ReplayHumanPhase:
-    return ReplayHumanPhase(read_records(source, columns=["day", "agent", *FIELDS]), agent_id, days, day_fn)
+def _replay(source: Path, agent_id: np.ndarray, days: int, day_fn: DayFn, first_day: int = 1
+            ) -> ReplayHumanPhase:
+    return ReplayHumanPhase(read_records(source, columns=["day", "agent", *FIELDS]), agent_id, days, day_fn,
+                            first_day)
 
 
 def load_replay(source: Path, config: dict[str, Any], agent_id: np.ndarray, days: int,
                 day_fn: DayFn) -> ReplayHumanPhase:
     """`day_fn` behind a replay of `source`'s first `days` days, after checking it ran the same
     human phase (`urb-jax baseline --human-phase-from`)."""
+    check_replayable(source, config, days)
+    return _replay(source, agent_id, days, day_fn)
+
+
+def check_replayable(source: Path, config: dict[str, Any], days: int) -> None:
+    """Raise UrbJaxError unless `source` ran the human phase `config` asks for, `days` days of it
+    all in SUMO (what a baseline replays)."""
     src = _checked_source(source, config, MUST_MATCH)
     if int(src.get("human_learning_episodes", -1)) < days:
         raise UrbJaxError(f"{source / 'exp_config.json'}: it has fewer than {days} human days.")
-    return _replay(source, agent_id, days, day_fn)
+    if int(src.get(SURROGATE_KEY, 0)):
+        raise UrbJaxError(f"{source / 'exp_config.json'}: its first {src[SURROGATE_KEY]} human days ran on "
+                          "the surrogate, a baseline's run in SUMO. Fix: reuse a run whose hybrid config "
+                          "has human_surrogate_days 0 (or a --mode sumo run), or drop --human-phase-from.")
 
 
 def reuse_human_phase(source: Path, config: dict[str, Any], scn: Scenario, task: TaskConfig,
                       cfg: HybridConfig, env_seed: int, calibrate: bool = True) -> HumanPhase:
     """The HumanPhase of the earlier train run in `source`, after checking that its inputs match
     `config` (this run's exp_config keys); raises UrbJaxError naming the mismatch otherwise."""
-    _checked_source(source, config, TRAIN_MUST_MATCH)
+    src = _checked_source(source, config, TRAIN_MUST_MATCH)
     path = source / HUMAN_FILE
     if not path.is_file():
         raise UrbJaxError(f"{path}: not found (only `urb-jax train` runs save their human phase). "
                           "Fix: pick a train run, or drop --human-phase-from.")
     z = np.load(path)
     calib = _calibration_days(z, path, cfg, calibrate)
-    replay = _replay(source, scn.agent_id, task.human_learning_episodes, _no_more_days)
+    S = int(src.get(SURROGATE_KEY, 0))
+    switch = _saved_humans(z, "switch") if S else None
+    replay = _replay(source, scn.agent_id, task.human_learning_episodes, _no_more_days, first_day=S + 1)
     records: list[DayRecord] = []
 
     def simulate(day: int, phase: str, choices: np.ndarray, is_cav: np.ndarray) -> DayResult:
         return replay(scn, choices, seed=env_seed, is_cav=None)
 
     humans = train_humans(scn, task.human_params(), task.human_learning_episodes, env_seed=env_seed,
-                          simulate=simulate, sink=records.append)
-    saved = HumanState(**{k: jnp.asarray(z[f"humans_{k}"]) for k in HumanState._fields})
+                          simulate=simulate, sink=records.append, first_day=S + 1, humans=switch)
+    saved = _saved_humans(z, "humans")
     same = jax.tree_util.tree_map(lambda a, b: bool(np.array_equal(np.asarray(a), np.asarray(b),
                                                                    equal_nan=True)), humans, saved)
     if not all(jax.tree_util.tree_leaves(same)):
         raise UrbJaxError(f"{path}: replaying the recorded human days does not give the saved human "
                           "state (different code or human model?). Fix: drop --human-phase-from.")
-    return HumanPhase(humans, records, *calib)
+    means = z["surrogate_means"] if "surrogate_means" in z.files else np.zeros(0, np.float32)
+    return HumanPhase(humans, records, *calib, S, switch, means)
+
+
+def _saved_humans(z: np.lib.npyio.NpzFile, prefix: str) -> HumanState:
+    return HumanState(**{k: jnp.asarray(z[f"{prefix}_{k}"]) for k in HumanState._fields})
 
 
 def _calibration_days(z: np.lib.npyio.NpzFile, path: Path, cfg: HybridConfig, calibrate: bool

@@ -24,7 +24,16 @@ from urb_jax.city.scenario import Scenario
 from urb_jax.core.progress import Progress
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import EnvState, RoutingEnv
-from urb_jax.game.humans import HumanParams, HumanState, act_jit, aon_routes, end_day_jit, init_humans_jit
+from urb_jax.game.humans import (
+    HumanParams,
+    HumanState,
+    act,
+    act_jit,
+    aon_routes,
+    end_day,
+    end_day_jit,
+    init_humans_jit,
+)
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.game.rewards import cav_rewards
 from urb_jax.game.rollout import act_at_once, act_by_levels
@@ -144,14 +153,17 @@ def _cav_choices(game: RoutingEnv, policy: CavPolicy, pstate: Any, key: jax.Arra
 
 def train_humans(scenario: Scenario, hp: HumanParams, days: int, *, env_seed: int,
                  simulate: Callable[[int, str, np.ndarray, np.ndarray], Any],
-                 sink: Callable[[DayRecord], None] | None = None, sumo: bool = True) -> HumanState:
-    """The human learning phase: `days` days of humans only, every one a learning day; returns the
-    trained knowledge. `simulate(day, phase, choices, is_cav)` returns the day's DayResult."""
+                 sink: Callable[[DayRecord], None] | None = None, sumo: bool = True,
+                 first_day: int = 1, humans: HumanState | None = None) -> HumanState:
+    """The human learning phase: days `first_day`..`days` of humans only, every one a learning day;
+    returns the trained knowledge. `simulate(day, phase, choices, is_cav)` returns the day's
+    DayResult. `humans`: the knowledge before `first_day` (default: day 1's, free-flow)."""
     root = jax.random.PRNGKey(env_seed)
     fft = jnp.asarray(scenario.fft, dtype=jnp.float32)
-    humans = init_humans_jit(jax.random.fold_in(root, 0x1), fft, jnp.asarray(scenario.route_valid), hp)
+    if humans is None:
+        humans = _first_humans(scenario, hp, root)
     no_cav = np.zeros(scenario.n_agents, dtype=bool)
-    for day in range(1, days + 1):
+    for day in range(first_day, days + 1):
         k_act, k_learn = jax.random.split(jax.random.fold_in(root, day))
         choices = np.asarray(act_jit(k_act, humans, hp, fft))
         res = simulate(day, PHASE_HUMAN, choices, no_cav)
@@ -160,3 +172,29 @@ def train_humans(scenario: Scenario, hp: HumanParams, days: int, *, env_seed: in
         if sink is not None:
             sink(DayRecord(day, PHASE_HUMAN, choices, no_cav, res, -np.asarray(res.travel_time), None, sumo))
     return humans
+
+
+def train_humans_on_model(scenario: Scenario, hp: HumanParams, days: int, *, env_seed: int,
+                          travel_times: Callable[[jnp.ndarray], jnp.ndarray]
+                          ) -> tuple[HumanState, np.ndarray]:
+    """Human days 1..`days` on a travel-time model (choices [N] -> minutes [N], e.g. the calibrated
+    surrogate) in one jitted scan: the same day keys and day rule as `train_humans`, so its SUMO
+    days can continue from the returned knowledge. Returns (knowledge, each day's mean time [days])."""
+    root = jax.random.PRNGKey(env_seed)
+    fft = jnp.asarray(scenario.fft, dtype=jnp.float32)
+    no_cav = np.zeros(scenario.n_agents, dtype=bool)
+
+    def day(humans: HumanState, d: jnp.ndarray) -> tuple[HumanState, jnp.ndarray]:
+        k_act, k_learn = jax.random.split(jax.random.fold_in(root, d))
+        choices = act(k_act, humans, hp, fft)
+        times = travel_times(choices)
+        return end_day(k_learn, humans, choices, times, hp, no_cav, learn_today=True), times.mean()
+
+    scan = jax.jit(lambda h: jax.lax.scan(day, h, jnp.arange(1, days + 1)))
+    humans, means = scan(_first_humans(scenario, hp, root))
+    return humans, np.asarray(means)
+
+
+def _first_humans(scenario: Scenario, hp: HumanParams, root: jax.Array) -> HumanState:
+    return init_humans_jit(jax.random.fold_in(root, 0x1), jnp.asarray(scenario.fft, dtype=jnp.float32),
+                           jnp.asarray(scenario.route_valid), hp)

@@ -36,13 +36,16 @@ from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import (
     JOURNAL_KEY,
+    SURROGATE_KEY,
     HumanPhase,
+    check_replayable,
     drop_journal,
     journal,
     load_replay,
     reuse_human_phase,
     run_human_phase,
     save_human_phase,
+    surrogate_human_days,
 )
 from urb_jax.experiment.hybrid.plan import AlgoConfig, HybridConfig, load_hybrid_config
 from urb_jax.experiment.hybrid.trainer import Stopped, TrainSummary, train_group
@@ -331,6 +334,7 @@ def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | No
         "num_machines": int(scn.n_agents * task.ratio_machines), "exp_type": "normal",
         "human_days": task.human_learning_episodes, "versions": versions(), "command": sys.argv,
         "status": "running", "human_phase_from": human_phase_from,
+        SURROGATE_KEY: surrogate_human_days(hyb, task.human_learning_episodes, args["mode"] != "sumo"),
         **_dropped(scn, bool(args.get("drop_unroutable", False))),
     }
 
@@ -428,10 +432,12 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     exp_id = exp_id or f"{model}_{Path(net).name}_{task_path.stem}_s{env_seed}"
     t0 = time.perf_counter()
     scn = _scenario(net, networks_dir, env_seed, env, task, drop_unroutable)  # a network error: no folder
-    folder = create_results_dir(results_dir, exp_id, overwrite)
-    log_run_to(folder)
     config = _baseline_config(scn, task, task_path, env, env_path, env_seed, model, human_phase_from,
                               drop_unroutable)
+    if human_phase_from:  # a source that cannot be replayed: no folder either
+        check_replayable(Path(results_dir) / human_phase_from, config, task.human_learning_episodes)
+    folder = create_results_dir(results_dir, exp_id, overwrite)
+    log_run_to(folder)
     write_config(folder, config)
     with _stops_cleanly([folder], resumable=False):
         return _run_baseline_days(folder, config, scn, task, env, policy, env_seed, day_fn, results_dir,

@@ -33,6 +33,9 @@ class HybridConfig:
     calib_human_days: int = 50
     calib_varied_days: int = 8
     calib_steps: int = 600
+    # Leading human days on the surrogate fitted to the varied calibration days (modes hybrid and
+    # surrogate); the rest, at least the last 50 (t_pre's days), are SUMO days. 0: all in SUMO (URB).
+    human_surrogate_days: int = 0
     refit_days: int = 32
     refit_steps: int = 150
     day_timeout_s: float = 600.0
@@ -46,6 +49,7 @@ class HybridConfig:
         at_least = {"train_days": 1, "num_envs": 1, "sumo_workers": 1, "max_vmapped_seeds": 1,
                     "surrogate_days_per_round": 0, "sumo_days_per_round": 0, "sumo_updates": 0,
                     "calib_human_days": 0, "calib_varied_days": 0, "calib_steps": 0, "refit_days": 1,
+                    "human_surrogate_days": 0,
                     "refit_steps": 0}
         for key, low in at_least.items():
             if getattr(self, key) < low:
@@ -56,6 +60,11 @@ class HybridConfig:
         if self.day_timeout_s <= 0 or self.route_bias_prior_days < 0:
             raise ConfigError("key 'day_timeout_s' must be > 0 and 'route_bias_prior_days' >= 0. "
                               "Fix: set them so.")
+
+    @property
+    def bias_prior(self) -> float | None:
+        """The route-residual shrinkage where the surrogate corrects by it (`route_bias`), else None."""
+        return self.route_bias_prior_days if self.route_bias else None
 
 
 def load_hybrid_config(name: str = "default") -> tuple[HybridConfig, Path]:

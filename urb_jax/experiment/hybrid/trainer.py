@@ -42,7 +42,7 @@ from urb_jax.reporting.records import DayRecord, RecordsWriter
 from urb_jax.sumo_bridge import DayExecutor, DayResult
 from urb_jax.sumo_bridge.memo import MemoExecutor
 from urb_jax.surrogate import SumoSample, build_static, init_params, predict
-from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_params, route_bias, without_bias
+from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias
 from urb_jax.surrogate.model import Static
 
 Row = dict[str, float]  # one seed's rounds.csv row
@@ -296,10 +296,7 @@ class HybridTrainer:
     def fit(self, start: Params, sub: SumoSample, fit_cfg: FitConfig, full: SumoSample) -> Params:
         """Gradient fit of the smooth model on `sub`, then the per-route residual on all SUMO days."""
         g = self.g
-        fitted = fit_params(without_bias(start), g.static, sub, fit_cfg)
-        bias = (route_bias(fitted, g.static, full, g.cfg.route_bias_prior_days) if g.cfg.route_bias
-                else jnp.zeros_like(g.p0["route_bias"]))
-        return {**fitted, "route_bias": bias}
+        return fit_with_bias(start, g.static, sub, fit_cfg, full, g.cfg.bias_prior)
 
     # ---- test
     def test(self) -> dict[str, float]:
