@@ -2,7 +2,8 @@
 
 On a terminal a tqdm bar (phase as its description, live figures as its postfix); without one
 (a log file, CI, nohup) a plain line at most every `every_s` seconds and at the end, so an
-overnight run's log still says how far it got. `enabled=False` shows nothing.
+overnight run's log still says how far it got. `enabled=False` (`--no-progress`) drops the bar
+and keeps only a plain line at most every QUIET_EVERY_S: a long phase is never silent for hours.
 """
 
 from __future__ import annotations
@@ -13,11 +14,14 @@ from typing import Any, TextIO
 
 from tqdm.auto import tqdm
 
+QUIET_EVERY_S = 300.0
+
 
 class Progress:
     def __init__(self, total: int, enabled: bool = True, *, desc: str = "", unit: str = "day",
                  every_s: float = 30.0, stream: TextIO | None = None) -> None:
-        self.total, self.unit, self.every_s = int(total), unit, every_s
+        self.total, self.unit = int(total), unit
+        self.every_s = every_s if enabled else max(every_s, QUIET_EVERY_S)
         self.stream = stream or sys.stderr
         self.enabled = enabled
         self.done = 0
@@ -40,7 +44,7 @@ class Progress:
             self.bar.set_description(self.phase or None)
             self.bar.set_postfix(self.info, refresh=False)
             self.bar.update(n)
-        elif self.enabled and time.monotonic() - self._last_line >= self.every_s:
+        elif time.monotonic() - self._last_line >= self.every_s:
             self._line()
 
     def line(self) -> str:

@@ -1,0 +1,36 @@
+"""Progress: a bar on a terminal, plain lines elsewhere, and never silent for hours."""
+
+from __future__ import annotations
+
+import io
+
+from urb_jax.core import progress as progress_module
+from urb_jax.core.progress import Progress
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_plain_lines_without_a_terminal_and_rarer_ones_with_no_progress(monkeypatch):
+    clock = Clock()
+    monkeypatch.setattr(progress_module.time, "monotonic", clock)
+    shown, quiet = io.StringIO(), io.StringIO()
+    bars = [Progress(1000, True, desc="human/SUMO", stream=shown, every_s=30),
+            Progress(1000, False, desc="human/SUMO", stream=quiet, every_s=30)]
+    for _ in range(20):  # 20 days, one a minute
+        clock.t += 60
+        for bar in bars:
+            bar.update(1)
+    for bar in bars:
+        bar.close()
+    lines = shown.getvalue().splitlines()
+    assert len(lines) == 21 and lines[-1] == "human/SUMO: 20/1000 day (2%), 0.0167 day/s, ETA 980:00"
+    # --no-progress: a line every 5 minutes at most, none at the end (a short run prints nothing)
+    assert quiet.getvalue().splitlines() == [f"human/SUMO: {d}/1000 day ({p}%), 0.0167 day/s, ETA {m}:00"
+                                             for d, p, m in ((5, 0, 995), (10, 1, 990), (15, 2, 985),
+                                                             (20, 2, 980))]
