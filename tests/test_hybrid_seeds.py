@@ -100,11 +100,13 @@ def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa
 
 @pytest.mark.slow
 def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa: F811
-    """A 2-seed run killed in the middle of round 2's SUMO batch (executor calls: H human days,
-    1 calibration batch, then one batch per round), resumed by the second seed's id, ends with
-    both seeds' records and metrics equal to the uninterrupted run."""
+    """A 2-seed run killed in the middle of round 2's SUMO batch, resumed by the second seed's id,
+    ends with both seeds' records and metrics equal to the uninterrupted run. The reference run's
+    executor calls end: round 2, round 3, 10 // P test batches, the AON day (before them: the
+    varied calibration batch and the distinct human days, a number that depends on the repeats)."""
+    round2 = len(pair["executor"].batches) - 10 // P - 2
     with pytest.raises(InterruptedRunError, match="Continue with: urb-jax train --resume"):
-        _train(confs, tmp_path, "pair", FakeExecutor(fail_on_call=H + 3), seeds=[0, 1])
+        _train(confs, tmp_path, "pair", FakeExecutor(fail_on_call=round2), seeds=[0, 1])
     lead, other = tmp_path / "pair_s0", tmp_path / "pair_s1"
     assert latest_checkpoint(lead)[0] == 1  # the group checkpoint lives in the first folder
     assert not (other / "checkpoints").exists()
