@@ -232,6 +232,7 @@ def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses):  # no
     alive = [p for p in workers if Path(f"/proc/{p}").exists()
              and "zombie" not in Path(f"/proc/{p}/status").read_text()]
     assert not alive, alive
+    assert (tmp_path / ".k.lock").read_text() == ""  # no owner left to "take over" from
 
 
 def test_mode_sumo_checkpoints_stay_bounded(confs, tmp_path):  # noqa: F811

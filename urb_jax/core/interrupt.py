@@ -37,10 +37,19 @@ _presses = 0
 _stop_message: Callable[[], str] | None = None
 
 
+_exit_hooks: list[Callable[[], object]] = []
+
+
 def on_stop(message: Callable[[], str] | None) -> None:
     """What a forced stop prints (the run's resume line); None: a plain line."""
     global _stop_message
     _stop_message = message
+
+
+def at_hard_exit(hook: Callable[[], object]) -> None:
+    """`hook` runs when a stop leaves without teardown (`_hard_exit`), where atexit handlers do
+    not: small bookkeeping only (e.g. a run folder's lock owner), its errors ignored."""
+    _exit_hooks.append(hook)
 
 
 def _hard_exit(why: str) -> NoReturn:
@@ -52,6 +61,9 @@ def _hard_exit(why: str) -> NoReturn:
             text = f"{why} {_stop_message()}"
     with contextlib.suppress(Exception):
         os.write(2, f"urb-jax: {text}\n".encode())
+    for hook in _exit_hooks:
+        with contextlib.suppress(Exception):
+            hook()
     for child in multiprocessing.active_children():  # SUMO workers: never left behind
         with contextlib.suppress(OSError):
             os.kill(child.pid, signal.SIGKILL)  # type: ignore[arg-type]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import atexit
 import fcntl
+import functools
 import logging
 import os
 import platform
@@ -19,6 +20,7 @@ import pandas as pd
 
 from urb_jax.core.atomic import umask, write_bytes, write_json
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.interrupt import at_hard_exit
 from urb_jax.reporting.records import remove_parts, write_plots, write_run_metrics
 
 CONFIG_FILE = "exp_config.json"
@@ -64,7 +66,9 @@ def lock_run(folder: Path) -> None:
     os.ftruncate(fd, 0)
     os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     _LOCKS[folder] = fd
-    atexit.register(os.ftruncate, fd, 0)  # a clean exit leaves no owner to "take over" from
+    release = functools.partial(os.ftruncate, fd, 0)  # an exit leaves no owner to "take over" from
+    atexit.register(release)
+    at_hard_exit(release)  # a Ctrl-C stop leaves with os._exit, where atexit does not run
 
 
 def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = False) -> Path:
