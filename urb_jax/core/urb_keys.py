@@ -91,9 +91,14 @@ def _refuse(data: Mapping[str, Any], family: Family, source: str) -> None:
         if key in family.refused:
             by_feature.setdefault(family.refused[key], []).append(f"'{key}' = {data[key]!r}")
     if by_feature:
-        why = "; ".join(f"key(s) {', '.join(keys)}: {feature}" for feature, keys in by_feature.items())
+        why = "; ".join(f"key(s) {_some(keys)}: {feature}" for feature, keys in by_feature.items())
         raise ConfigError(f"{source}: {why}. urb-jax does not implement this URB feature, so it will "
                           "not run this config (docs/experiment.md, \"URB's configs as written\").")
+
+
+def _some(keys: list[str], shown: int = 3) -> str:
+    more = f" and {len(keys) - shown} more" if len(keys) > shown else ""
+    return ", ".join(keys[:shown]) + more
 
 
 def _rename(data: Mapping[str, Any], family: Family, source: str) -> tuple[dict[str, Any], dict[str, str]]:
