@@ -108,3 +108,11 @@ class IPPOStarConfig:
     max_grad_norm: float = 1.0
     normalize_obs: bool = True
     num_envs: int = 1
+
+
+@dataclass(frozen=True)
+class BaselineConfig:
+    """URB scripts/baselines.py's algo config: how many CAV days a baseline runs before testing
+    (`urb-jax baseline --alg-conf`; it sets the task's training_eps)."""
+
+    training_eps: int = 200

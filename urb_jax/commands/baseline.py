@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from urb_jax.algorithms.registry import load_baseline_config
 from urb_jax.commands.common import add_network_flags
 from urb_jax.experiment.run import run_baseline
 
@@ -18,6 +19,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--task-conf", default="config1",
                         help="task config id or .json path (default config1)")
     parser.add_argument("--env-conf", default="config1", help="env config id or .json path (default config1)")
+    parser.add_argument("--alg-conf", default=None,
+                        help="URB baseline algo config (.json path, e.g. URB's config/algo_config/baseline/"
+                             "config1.json): its training_eps sets the CAV days before testing "
+                             "(default: the task config's training_eps)")
     parser.add_argument("--id", default=None, help="experiment id (default: <model>_<net>_<task>_s<seed>)")
     parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing results with this id")
@@ -29,11 +34,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    overrides = None
+    if args.alg_conf:  # URB's baselines.py reads training_eps from its algo config
+        overrides = {"training_eps": load_baseline_config(args.alg_conf).config.training_eps}
     out = run_baseline(
         model=args.model, net=args.net, task_conf=args.task_conf, env_conf=args.env_conf,
         env_seed=args.env_seed, exp_id=args.id, networks_dir=args.networks_dir,
         results_dir=args.results_dir, overwrite=args.overwrite, progress=not args.no_progress,
         human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
+        task_overrides=overrides,
     )
     m = out.metrics
     config = json.loads((out.folder / "exp_config.json").read_text())

@@ -10,6 +10,8 @@ import numpy as np
 
 from urb_jax.algorithms.registry import ALGORITHMS
 from urb_jax.commands.common import add_network_flags
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment.dry_run import describe, plan_train
 from urb_jax.experiment.hybrid.plan import MODES
 from urb_jax.experiment.run import RunResult, resume_train, run_train
 
@@ -49,10 +51,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                              "pip install 'urb-jax[ray]'); --resume uses the recorded one unless given")
     parser.add_argument("--ray-address", default=None, help="Ray cluster: 'auto' or 'ray://host:port' "
                         "(default: start a local Ray)")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="load and check every config and the network, print the resolved experiment "
+                             "and exit (0: it would run; 2 and the reason: it would not); simulates "
+                             "nothing and creates no results folder")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.dry_run:
+        return dry_run(args)
     if args.resume:
         outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
                             executor_kind=args.executor, ray_address=args.ray_address)
@@ -78,6 +86,24 @@ def run(args: argparse.Namespace) -> int:
     line = seed_summary(outs)
     if line:
         print(line)
+    return 0
+
+
+def dry_run(args: argparse.Namespace) -> int:
+    """Print the experiment `run` would start; errors reach the CLI as exit code 2 with the reason."""
+    if args.resume:
+        raise UrbJaxError("--dry-run checks a new run's configs; --resume continues a recorded run whose "
+                          "configs were checked when it started. Fix: drop one of the two flags.")
+    plan = plan_train(
+        alg=args.alg, net=args.net, task_conf=args.task_conf, alg_conf=args.alg_conf, env_conf=args.env_conf,
+        hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=args.seeds or [args.seed], exp_id=args.id,
+        mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
+        overwrite=args.overwrite, train_days=args.train_days, drop_unroutable=args.drop_unroutable,
+        human_phase_from=args.human_phase_from)
+    print("dry run: every config loaded and checked; nothing simulated, no results folder created.")
+    for line in describe(plan):
+        print(line)
+    print("would run: yes")
     return 0
 
 

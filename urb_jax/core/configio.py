@@ -1,5 +1,6 @@
 """Load JSON configs into typed, frozen dataclasses; unknown keys and wrong types are errors
-that name the file, the key and the fix. Shared by task/env/algo configs."""
+that name the file, the key and the fix. Shared by task/env/algo configs; a file may be written
+with URB's key names (`urb_jax.core.urb_keys`, resolved here, in `load_resolved`)."""
 
 from __future__ import annotations
 
@@ -7,11 +8,13 @@ import dataclasses
 import json
 import types
 import typing
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Generic, TypeVar
 
 from urb_jax import configs
 from urb_jax.core.errors import ConfigError
+from urb_jax.core.urb_keys import Family, Resolution, resolve
 
 T = TypeVar("T")
 
@@ -57,8 +60,9 @@ def from_dict(cls: type[T], data: dict[str, Any], source: str = "<dict>") -> T:
     unknown = sorted(set(data) - set(known) - {"desc"})
     if unknown:
         raise ConfigError(
-            f"{source}: unknown key(s) {', '.join(repr(k) for k in unknown)}. "
-            f"Fix: remove them or use one of: {', '.join(sorted(known))}."
+            f"{source}: unknown key(s) {', '.join(repr(k) for k in unknown)}. Fix: correct the name; the "
+            f"keys are: {', '.join(sorted(known))} (URB's names for them are accepted too, "
+            "docs/experiment.md, \"URB's configs as written\")."
         )
     kwargs: dict[str, Any] = {}
     for name, value in data.items():
@@ -86,8 +90,28 @@ def from_dict(cls: type[T], data: dict[str, Any], source: str = "<dict>") -> T:
         raise ConfigError(f"{source}: {exc}") from exc
 
 
-def load_json(cls: type[T], path: str | Path) -> T:
-    path = Path(path)
+@dataclass(frozen=True)
+class Loaded(Generic[T]):
+    """A typed config, the file it came from, and how its keys were resolved."""
+
+    config: T
+    path: Path
+    resolution: Resolution
+
+
+def load_json(cls: type[T], path: str | Path, family: Family | None = None) -> T:
+    return load_resolved(cls, path, family).config
+
+
+def load_resolved(cls: type[T], path: str | Path, family: Family | None = None) -> Loaded[T]:
+    """`path` as `cls`, read in the dialect of URB's config `family` (None: urb-jax's names only)."""
+    data = read_json(Path(path))
+    resolved, resolution = resolve(data, family, str(path))
+    return Loaded(from_dict(cls, resolved, str(path)), Path(path), resolution)
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    """The JSON object in `path`; a missing file, bad JSON or a non-object are ConfigErrors."""
     if not path.is_file():
         raise ConfigError(f"{path}: config file not found.")
     try:
@@ -96,7 +120,7 @@ def load_json(cls: type[T], path: str | Path) -> T:
         raise ConfigError(f"{path}: not valid JSON ({exc}).") from exc
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: must hold a JSON object.")
-    return from_dict(cls, data, str(path))
+    return data
 
 
 def find_config(kind: str, name: str, subdir: str | None = None) -> Path:

@@ -62,6 +62,7 @@ from urb_jax.experiment.run_folder import (
     write_rounds,
 )
 from urb_jax.experiment.run_log import log_run_to, with_run_log
+from urb_jax.experiment.urb_configs import CONFIG_ALIASES_KEY, config_aliases
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.reporting.records import RecordsWriter, remove_parts
 from urb_jax.sumo_bridge import DayExecutor, DayResult, InProcessExecutor, MemoExecutor, SumoPool, run_day
@@ -336,6 +337,7 @@ def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | No
         "status": "running", "human_phase_from": human_phase_from,
         SURROGATE_KEY: surrogate_human_days(hyb, task.human_learning_episodes, args["mode"] != "sumo"),
         **_dropped(scn, bool(args.get("drop_unroutable", False))),
+        CONFIG_ALIASES_KEY: config_aliases(args),  # URB key names given, and what they set
     }
 
 

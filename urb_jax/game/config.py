@@ -1,8 +1,9 @@
 """Task and env configs (URB_REFERENCE §5, §11) as typed frozen dataclasses.
 
-URB's keys are accepted as URB spells them; our extensions (paper HLM terms, the RouteRL-literal
-switch, demand scaling, baseline training days) have defaults that reproduce the paper's setting.
-Unknown keys and wrong types are errors naming the file and key (`urb_jax.configio`).
+URB's keys are accepted as URB spells them (`urb_jax.core.urb_keys`: ENV_FAMILY, TASK_FAMILY); our
+extensions (paper HLM terms, the RouteRL-literal switch, demand scaling, baseline training days)
+have defaults that reproduce the paper's setting. Unknown keys and wrong types are errors naming the
+file and key (`urb_jax.core.configio`); URB features we lack are refused by name.
 """
 
 from __future__ import annotations
@@ -12,13 +13,23 @@ from pathlib import Path
 from typing import Any
 
 from urb_jax.city.routes import RouteParams
-from urb_jax.core.configio import find_config, from_dict, load_json
+from urb_jax.core.configio import Loaded, find_config, from_dict, load_resolved
 from urb_jax.core.errors import ConfigError
+from urb_jax.core.urb_keys import ENV_FAMILY, TASK_FAMILY
 from urb_jax.game.humans import HumanParams
 from urb_jax.game.observations import OBSERVATION_TYPES
 from urb_jax.game.rewards import behaviour_coefficients
 
 DEMAND_MODES = ("auto", "sample", "duplicate")
+# URB's observation types (RouteRL routerl/environment/observations.py) urb-jax lacks, by feature.
+_ETA = "URB's ETA observations (recent travel times of earlier same-OD agents, per route)"
+_LIVE = "URB's live SUMO observations (per-route congestion read from the running simulation)"
+_DETECTOR = "URB's detector observations (toy-network detector counts)"
+MISSING_OBSERVATIONS = {
+    "trip_info_eta": _ETA, "trip_info_eta_mask_norm": _ETA, "trip_info_eta_route_congestion": _LIVE,
+    "route_congestion": _LIVE, "trip_info_eta_sumo": _LIVE,
+    "previous_agents_plus_start_time_detector_data": _DETECTOR,
+}
 
 
 @dataclass(frozen=True)
@@ -90,13 +101,18 @@ class EnvConfig:
     use_clustered_routes: bool = False
 
     def __post_init__(self) -> None:
-        if self.observations not in OBSERVATION_TYPES:
+        if self.observations in MISSING_OBSERVATIONS:
             raise ConfigError(
-                f"key 'observations' = {self.observations!r} is not supported. "
-                f"Fix: use one of {', '.join(OBSERVATION_TYPES)}."
-            )
+                f"key 'observations' = {self.observations!r}: {MISSING_OBSERVATIONS[self.observations]}, "
+                f"which urb-jax does not implement (it has {', '.join(OBSERVATION_TYPES)}).")
+        if self.observations not in OBSERVATION_TYPES:
+            raise ConfigError(f"key 'observations' = {self.observations!r} is no observation type of URB's "
+                              f"or urb-jax's. Fix: use one of {', '.join(OBSERVATION_TYPES)}.")
         if self.use_clustered_routes:
-            raise ConfigError("key 'use_clustered_routes' = true is not supported. Fix: set it to false.")
+            raise ConfigError(
+                "key 'use_clustered_routes' = true: URB's clustered route sets (pre-generated per network "
+                "under networks/<net>/clustered_routes, read by URB's scripts/*_clusters.py), which urb-jax "
+                "does not implement (its routes are JanuX's sampler, docs/networks.md).")
         if self.number_of_paths < 1 or self.num_samples < 1:
             raise ConfigError("keys 'number_of_paths' and 'num_samples' must be >= 1.")
 
@@ -117,13 +133,23 @@ class ExperimentConfig:
 
 
 def load_task_config(name_or_path: str) -> tuple[TaskConfig, Path]:
-    path = find_config("task", name_or_path)
-    return load_json(TaskConfig, path), path
+    loaded = load_task(name_or_path)
+    return loaded.config, loaded.path
 
 
 def load_env_config(name_or_path: str) -> tuple[EnvConfig, Path]:
-    path = find_config("env", name_or_path)
-    return load_json(EnvConfig, path), path
+    loaded = load_env(name_or_path)
+    return loaded.config, loaded.path
+
+
+def load_task(name_or_path: str) -> Loaded[TaskConfig]:
+    """A task config by id or path, in urb-jax's or URB's key names, with its resolution."""
+    return load_resolved(TaskConfig, find_config("task", name_or_path), TASK_FAMILY)
+
+
+def load_env(name_or_path: str) -> Loaded[EnvConfig]:
+    """An env config by id or path, in urb-jax's or URB's key names, with its resolution."""
+    return load_resolved(EnvConfig, find_config("env", name_or_path), ENV_FAMILY)
 
 
 def task_from_dict(data: dict[str, Any], source: str = "<dict>") -> TaskConfig:

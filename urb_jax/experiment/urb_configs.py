@@ -1,0 +1,45 @@
+"""URB's config files in a run: which keys were given in URB's names and what they set.
+
+A train run writes `config_aliases` into exp_config.json (task, env and algorithm config: each
+file's URB aliases as given and as resolved, and the URB keys accepted without effect), so a run
+started from URB's own files says exactly how urb-jax read them. `load_urb_file` reads any file
+of URB's config/ folders as urb-jax would (tests and benchmarks/urb_configs.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from urb_jax.algorithms.registry import load_algo, load_urb_algo
+from urb_jax.core.configio import Loaded
+from urb_jax.core.errors import ConfigError
+from urb_jax.game.config import load_env, load_task
+
+CONFIG_ALIASES_KEY = "config_aliases"
+
+
+def train_configs(args: dict[str, Any]) -> dict[str, Loaded[Any]]:
+    """The task, env and algorithm configs of a train run's arguments (`run.TrainArgs`)."""
+    return {"task": load_task(args["task_conf"]), "env": load_env(args["env_conf"]),
+            "alg": load_algo(args["alg"], args["alg_conf"])}
+
+
+def config_aliases(args: dict[str, Any]) -> dict[str, Any]:
+    """exp_config.json's `config_aliases`: per config, the file, URB's family, the aliases applied
+    (URB key -> urb-jax key), the URB values given under them, and the keys ignored or derived."""
+    return {kind: loaded.resolution.record() for kind, loaded in train_configs(args).items()}
+
+
+def load_urb_file(path: str | Path) -> Loaded[Any]:
+    """A file of URB's config/{algo_config/<alg>,env_config,task_config}/ as urb-jax reads it
+    (a ConfigError naming the file and what urb-jax lacks when it refuses it)."""
+    path = Path(path)
+    if path.parent.name == "env_config":
+        return load_env(str(path))
+    if path.parent.name == "task_config":
+        return load_task(str(path))
+    if path.parent.parent.name == "algo_config":
+        return load_urb_algo(path)
+    raise ConfigError(f"{path}: not in URB's config layout (config/algo_config/<algorithm>/, "
+                      "config/env_config/ or config/task_config/).")
