@@ -13,7 +13,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from urb_jax.algorithms.learner import Day, Learner
+from urb_jax.algorithms.learner import Day, Learner, collect
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.rollout import act_by_levels, dependency_levels
 from urb_jax.surrogate import Static, predict
@@ -30,6 +30,8 @@ class TrainerFns(NamedTuple):
     """Jitted (except `split_p`) and vmapped over seeds."""
 
     sur_round: Callable[[Runner, jax.Array], tuple[Runner, Metrics]]  # a round of surrogate iterations
+    # adapting humans: (runner [S], population [S], keys [S, 2]) -> (runner, population, metrics)
+    sur_round_adapt: Callable[[Runner, EnvState, jax.Array], tuple[Runner, EnvState, Metrics]]
     update: Callable[[Runner, Day, jax.Array], tuple[Runner, Metrics]]  # one update on given days
     act_explore: ActFn  # exploring policies on the real days
     act_greedy: ActFn  # frozen test policies on the real days
@@ -42,13 +44,37 @@ class TrainerFns(NamedTuple):
 
 
 def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, static: Static, P: int,
-              n_iters_round: int) -> TrainerFns:
-    """The pieces for `learner` trained on the surrogate env `env`, P real days per round."""
+              n_iters_round: int, n_real: int | None = None) -> TrainerFns:
+    """The pieces for `learner` trained on the surrogate env `env`, P real days per round, played
+    by `n_real` copies of the real humans (P: frozen humans, days side by side; 1: adapting humans,
+    one population living the days in order)."""
     real_env = RoutingEnv(env.scenario, env.is_cav, human_init=env.human_init, **env_kwargs)  # SUMO days
     levels = dependency_levels(env)
+    n_real = P if n_real is None else n_real
 
     def _sur_round(runner: Runner, key: jax.Array) -> tuple[Runner, Metrics]:
         return jax.lax.scan(learner.iteration, runner, jax.random.split(key, n_iters_round))
+
+    def _sur_round_adapt(runner: Runner, pop: EnvState, key: jax.Array) -> tuple[Runner, EnvState, Metrics]:
+        """Adapting humans: every iteration the learner's B envs start from the population's day,
+        then the population lives the iteration's B x days_per_iter days in order (the exploring
+        CAVs of the updated policy, the surrogate's times), so human learning days = URB's days."""
+        n_envs = jax.tree_util.tree_leaves(runner.env_states)[0].shape[0]
+        n_days = learner.days_per_iter * n_envs
+
+        def body(carry: tuple[Runner, EnvState], k: jax.Array) -> tuple[tuple[Runner, EnvState], Metrics]:
+            runner, pop = carry
+            k_it, k_pop = jax.random.split(k)
+            envs = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n_envs, *x.shape)), pop)
+            runner, metrics = learner.iteration(runner._replace(env_states=envs), k_it)
+            pops, days = collect(env, learner.policy(runner, True), k_pop,
+                                 jax.tree_util.tree_map(lambda x: x[None], pop), n_days, runner.env_params)
+            pop = jax.tree_util.tree_map(lambda x: x[0], pops)
+            return (runner, pop), {**metrics, "population_time_human": days.time_human.mean(),
+                                   "population_time_cav": days.time_cav.mean()}
+
+        (runner, pop), metrics = jax.lax.scan(body, (runner, pop), jax.random.split(key, n_iters_round))
+        return runner, pop, metrics
 
     def _act(runner: Runner, keys: jax.Array, states: EnvState, explore: bool
              ) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
@@ -68,12 +94,13 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
         def one(k: jax.Array) -> tuple[Runner, EnvState]:
             k_init, k_real = jax.random.split(k)
             _, real = jax.vmap(real_env.reset)(jax.random.split(k_real, P))
-            return learner.init(k_init), real
+            return learner.init(k_init), jax.tree_util.tree_map(lambda x: x[:n_real], real)
 
         return jax.vmap(one)(k_start)
 
     return TrainerFns(
         sur_round=jax.jit(jax.vmap(_sur_round)),
+        sur_round_adapt=jax.jit(jax.vmap(_sur_round_adapt)),
         update=jax.jit(jax.vmap(learner.update_from_days)),
         act_explore=jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, True))),
         act_greedy=jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, False))),

@@ -60,7 +60,7 @@ class TrainState(NamedTuple):
     """The arrays a round carries and checkpoints, each with a leading seed axis."""
 
     runner: Runner  # [S]
-    real: EnvState  # the real humans, P copies per seed [S, P]
+    real: EnvState  # the real humans [S, R]: P copies (frozen), or one population (adapting)
     params: Params  # each seed's surrogate [S]
 
 
@@ -76,6 +76,7 @@ class Group:
     folders: list[Path]
     S: int  # seeds
     P: int  # SUMO days per round and seed
+    adapt: bool  # humans keep learning (task should_humans_adapt): one population per seed
     H: int  # human days
     E: int  # test days
     is_cav: np.ndarray  # [N]
@@ -86,6 +87,12 @@ class Group:
     alg_config: AlgoConfig
     fns: TrainerFns
     keys: GroupKeys
+
+    @property
+    def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
+        """Real-human copies per seed: P (frozen humans, the P days side by side), or 1 (adapting
+        humans: one population lives every day in order, as in URB)."""
+        return 1 if self.adapt else self.P
 
 
 @dataclass(frozen=True)
@@ -133,10 +140,12 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     probe, _ = learner_for(alg, alg_config, env, cfg, 1, mode)
     plan = plan_rounds(cfg, mode, probe.days_per_iter)
     learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
-    fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters)
+    n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
+    fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
     return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,
-                 task.human_learning_episodes, task.test_eps, is_cav, np.flatnonzero(is_cav), static, p0,
+                 task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
+                 np.flatnonzero(is_cav), static, p0,
                  plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]))
 
 
@@ -174,7 +183,7 @@ class HybridTrainer:
             fitted = self.fit(g.p0, sample0, FitConfig(steps=g.cfg.calib_steps), sample0)
             state = state._replace(params=_stack([fitted] * g.S))
         real = state.real._replace(humans=jax.tree_util.tree_map(
-            lambda x: jnp.broadcast_to(x, (g.S, g.P, *x.shape)), human.humans))
+            lambda x: jnp.broadcast_to(x, (g.S, g.R, *x.shape)), human.humans))
         self.state = state._replace(real=real)
         self.samples = [sample0] * g.S
         for writer in self.writers:
@@ -226,13 +235,22 @@ class HybridTrainer:
         """The round's learner iterations on the surrogate envs (one vmapped lax.scan)."""
         g, days = self.g, self.g.plan.surrogate_days
         t0 = time.perf_counter()
-        runner, m = g.fns.sur_round(self.state.runner, k_sur)
-        self.state = self.state._replace(runner=runner)
+        if g.adapt:  # adapting humans: the population lives the round's days too
+            pop = jax.tree_util.tree_map(lambda x: x[:, 0], self.state.real)
+            runner, pop, m = g.fns.sur_round_adapt(self.state.runner, pop, k_sur)
+            real = jax.tree_util.tree_map(lambda x: x[:, None], pop)  # [S, 1]
+            self.state = self.state._replace(runner=runner, real=real)
+        else:
+            runner, m = g.fns.sur_round(self.state.runner, k_sur)
+            self.state = self.state._replace(runner=runner)
         m = {k: np.asarray(v).reshape(g.S, -1).mean(1) for k, v in m.items()}
         dt = time.perf_counter() - t0
         for i, row in enumerate(rows):
             row |= {"surrogate_days": days, "surrogate_s": dt,
                     "sur_time_cav": float(m["time_cav"][i]), "sur_time_hdv": float(m["time_human"][i])}
+            if "population_time_human" in m:
+                row |= {"population_time_cav": float(m["population_time_cav"][i]),
+                        "population_time_hdv": float(m["population_time_human"][i])}
         self.bar.update(g.S * days, self.tag + "train/surrogate", sur_days_s=g.S * days / dt,
                         sur_tCAV=float(m["time_cav"].mean()), sur_tHDV=float(m["time_human"].mean()))
 
@@ -262,16 +280,26 @@ class HybridTrainer:
 
     def play_sumo_days(self, k_act: jax.Array, k_step: jax.Array, k_upd: jax.Array
                        ) -> tuple[np.ndarray, list[DayResult], np.ndarray, Day]:
-        """(choices [S, P, N], SUMO results [S * P], times [S, P, N], days): the S x P days go to the
-        executor as one batch; the real humans advance by SUMO's times; `sumo_updates` updates."""
+        """(choices [S, P, N], SUMO results [S * P] seed-major, times [S, P, N], days [S, 1, P, ...]):
+        the real humans advance by SUMO's times, then `sumo_updates` updates. Frozen humans: the
+        S x P days go to the executor as one batch; adapting humans: the population lives the P
+        days in order, S days (one per seed) at a time."""
         g, s = self.g, self.state
-        n = g.scn.n_agents
-        obs, actions, choices = g.fns.act_explore(s.runner, g.fns.split_p(k_act), s.real)
-        choices = np.asarray(choices)  # [S, P, N]
-        results = self.executor.run_days(g.scn, choices.reshape(g.S * g.P, n), [g.env_seed] * (g.S * g.P),
-                                         is_cav=g.is_cav)
-        times = np.stack([res.travel_time for res in results]).astype(np.float32).reshape(g.S, g.P, n)
-        real, days = g.fns.sumo_step(g.fns.split_p(k_step), s.real, obs, actions, jnp.asarray(times))
+        n, R = g.scn.n_agents, g.R
+        keys_act, keys_step = g.fns.split_p(k_act), g.fns.split_p(k_step)  # [S, P, 2]
+        real, parts = s.real, []
+        for c in range(0, g.P, R):
+            obs, actions, choices = g.fns.act_explore(s.runner, keys_act[:, c:c + R], real)
+            choices = np.asarray(choices)  # [S, R, N]
+            results = self.executor.run_days(g.scn, choices.reshape(g.S * R, n), [g.env_seed] * (g.S * R),
+                                             is_cav=g.is_cav)
+            times = np.stack([res.travel_time for res in results]).astype(np.float32).reshape(g.S, R, n)
+            real, days = g.fns.sumo_step(keys_step[:, c:c + R], real, obs, actions, jnp.asarray(times))
+            parts.append((choices, results, times, days))
+        choices = np.concatenate([p[0] for p in parts], axis=1)
+        results = [res for i in range(g.S) for p in parts for res in p[1][i * R:(i + 1) * R]]
+        times = np.concatenate([p[2] for p in parts], axis=1)
+        days = jax.tree_util.tree_map(lambda *x: jnp.concatenate(x, axis=2), *[p[3] for p in parts])
         runner = s.runner
         for u in range(g.cfg.sumo_updates):
             runner, _ = g.fns.update(runner, days, jax.vmap(lambda k, u=u: jax.random.fold_in(k, u))(k_upd))
@@ -300,12 +328,13 @@ class HybridTrainer:
 
     # ---- test
     def test(self) -> dict[str, float]:
-        """`test_eps` SUMO days of the frozen greedy policies, S x P at a time (a repeated day runs
+        """`test_eps` SUMO days of the frozen greedy policies, S x R at a time (frozen humans: P days
+        side by side; adapting humans: in order, learning as in URB's test phase; a repeated day runs
         once with `reuse_identical_test_days`), then the AON reference day."""
         g = self.g
         executor = MemoExecutor(self.executor) if g.cfg.reuse_identical_test_days else self.executor
         first_test_choices = None
-        for start_day in range(0, g.E, g.P):
+        for start_day in range(0, g.E, g.R):
             choices = self.test_days(start_day, executor)
             if start_day == 0:
                 first_test_choices = choices[0, 0]
@@ -314,18 +343,19 @@ class HybridTrainer:
         return aon_same_humans(g.scn, first_test_choices, g.is_cav, executor, g.env_seed)
 
     def test_days(self, start_day: int, executor: DayExecutor) -> np.ndarray:
-        """Test days start_day + 1 .. + b (b <= P) of every seed; returns their choices [S, b, N]."""
+        """Test days start_day + 1 .. + b (b <= R) of every seed; returns their choices [S, b, N]."""
         g, s = self.g, self.state
-        n, b = g.scn.n_agents, min(g.P, g.E - start_day)
+        n, b = g.scn.n_agents, min(g.R, g.E - start_day)
         kt = jax.vmap(lambda k, d=start_day: jax.random.split(jax.random.fold_in(k, d)))(g.keys.test)
-        obs, actions, choices = g.fns.act_greedy(s.runner, g.fns.split_p(kt[:, 0]), s.real)
+        obs, actions, choices = g.fns.act_greedy(s.runner, g.fns.split_p(kt[:, 0])[:, :g.R], s.real)
         choices = np.asarray(choices)[:, :b]  # [S, b, N]
         results = executor.run_days(g.scn, choices.reshape(g.S * b, n), [g.env_seed] * (g.S * b),
                                     is_cav=g.is_cav)
-        times = np.zeros((g.S, g.P, n), np.float32)
+        times = np.zeros((g.S, g.R, n), np.float32)
         times[:, :b] = np.stack([res.travel_time for res in results]).reshape(g.S, b, n)
         times[:, b:] = times[:, :1]
-        real, days = g.fns.sumo_step(g.fns.split_p(kt[:, 1]), s.real, obs, actions, jnp.asarray(times))
+        real, days = g.fns.sumo_step(g.fns.split_p(kt[:, 1])[:, :g.R], s.real, obs, actions,
+                                     jnp.asarray(times))
         self.state = s._replace(real=real)
         for i in range(g.S):
             days_i = jax.tree_util.tree_map(lambda x, b=b, i=i: x[i, :, :b], days)
