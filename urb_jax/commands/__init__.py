@@ -13,4 +13,5 @@ COMMANDS = [
     "urb_jax.commands.export_day",
     "urb_jax.commands.metrics",
     "urb_jax.commands.train",
+    "urb_jax.commands.optimum",
 ]

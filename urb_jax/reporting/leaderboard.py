@@ -18,7 +18,8 @@ from urb_jax.core.errors import UrbJaxError
 KEYS = ["network", "algorithm", "task_config", "env_config"]
 SHOWN = ["t_pre", "t_CAV", "t_HDV_test", "t_test", "cost_of_learning", "delta_V", "delta_L",
          "CAV_advantage", "Effect_of_change", "Effect_of_remaining",
-         "t_pre_duration", "t_CAV_duration"]  # the published tables' measure (docs/metrics.md)
+         "t_pre_duration", "t_CAV_duration",  # the published tables' measure (docs/metrics.md)
+         "optimality_gap"]  # the run's objective minus the optimum reference's (urb-jax optimum)
 
 
 def collect(results_dir: str | os.PathLike) -> pd.DataFrame:
@@ -30,6 +31,9 @@ def collect(results_dir: str | os.PathLike) -> pd.DataFrame:
             continue
         cfg = json.loads(cfg_path.read_text())
         metrics = pd.read_csv(metrics_path).iloc[0].to_dict()
+        optimum = cfg_path.parent / "optimum.json"  # `urb-jax optimum RUN`: the SUMO-checked reference
+        if optimum.is_file():
+            metrics["optimality_gap"] = json.loads(optimum.read_text())["optimality_gap"]
         algorithm = cfg.get("algorithm") or f"baseline_{cfg.get('baseline_model', '?')}"
         rows.append({"exp_id": cfg_path.parent.name, "network": cfg.get("network", "?"),
                      "algorithm": algorithm, "task_config": cfg.get("task_config", "?"),
