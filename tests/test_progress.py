@@ -34,3 +34,17 @@ def test_plain_lines_without_a_terminal_and_rarer_ones_with_no_progress(monkeypa
     assert quiet.getvalue().splitlines() == [f"human/SUMO: {d}/1000 day ({p}%), 0.0167 day/s, ETA {m}:00"
                                              for d, p, m in ((5, 0, 995), (10, 1, 990), (15, 2, 985),
                                                              (20, 2, 980))]
+
+
+def test_a_line_per_round_even_with_no_progress(monkeypatch):
+    clock = Clock()
+    monkeypatch.setattr(progress_module.time, "monotonic", clock)
+    quiet = io.StringIO()
+    bar = Progress(300, False, desc="train/SUMO", stream=quiet)
+    for _ in range(3):  # three 10-second rounds of 100 days: far under the 5-minute quiet interval
+        clock.t += 10
+        bar.update(100)
+        bar.milestone()
+    assert quiet.getvalue().splitlines() == [f"train/SUMO: {d}/300 day ({p}%), 10 day/s, ETA {e}"
+                                             for d, p, e in ((100, 33, "0:20"), (200, 67, "0:10"),
+                                                             (300, 100, "0:00"))]

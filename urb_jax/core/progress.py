@@ -3,7 +3,8 @@
 On a terminal a tqdm bar (phase as its description, live figures as its postfix); without one
 (a log file, CI, nohup) a plain line at most every `every_s` seconds and at the end, so an
 overnight run's log still says how far it got. `enabled=False` (`--no-progress`) drops the bar
-and keeps only a plain line at most every QUIET_EVERY_S: a long phase is never silent for hours.
+and keeps only a plain line at most every QUIET_EVERY_S, and one per `milestone` (each training
+round): a long phase is never silent for hours.
 """
 
 from __future__ import annotations
@@ -45,6 +46,13 @@ class Progress:
             self.bar.set_postfix(self.info, refresh=False)
             self.bar.update(n)
         elif time.monotonic() - self._last_line >= self.every_s:
+            self._line()
+
+    def milestone(self) -> None:
+        """The end of a unit of work worth a line of its own (a training round): printed as a plain
+        line whenever there is no bar, `--no-progress` included, so a long run's log says where it
+        is at every round however long the round takes."""
+        if self.bar is None:
             self._line()
 
     def line(self) -> str:

@@ -396,6 +396,7 @@ def train_group(
     bar.update(g.S * (g.H + start * per_round), trainer.tag + ("resume" if human is None else "human"))
     for r in range(start, plan.n_rounds):
         trainer.run_round(r)
+        bar.milestone()  # a line per round, even with --no-progress
         if stop_after_round is not None and r + 1 >= stop_after_round:
             bar.close()
             return Stopped(r + 1)
