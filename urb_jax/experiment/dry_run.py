@@ -47,7 +47,7 @@ def plan_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "co
         "env_conf": env_conf, "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode,
         "networks_dir": networks_dir, "train_days": train_days, "drop_unroutable": drop_unroutable}
     setup = load_setup(args)
-    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True)
+    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=mode)
     if human_phase_from:
         _check_source(Path(results_dir), human_phase_from)
     folders = _folders(args, setup, seeds, exp_id, Path(results_dir), overwrite)

@@ -121,10 +121,17 @@ def _scenario(net: str, networks_dir: str | None, env_seed: int, env: EnvConfig,
                         jitter_s=task.demand_jitter_s)
 
 
-def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: bool) -> None:
+def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: bool, mode: str = "hybrid"
+                   ) -> None:
     """Refuse, before any SUMO day, a task whose URB metrics could not exist: no human day (t_pre),
-    no test day (t_CAV, t_test, WR), or, for training, no CAV to train."""
+    no test day (t_CAV, t_test, WR), or, for training, no CAV to train; and a marginal credit
+    without a calibrated surrogate to take its derivative (baselines, `--mode sumo`)."""
     where = f"task config {task_path}"
+    if task.reward_credit == "marginal" and (not train or mode == "sumo"):
+        raise ConfigError(f"{where}: key 'reward_credit' is 'marginal', which pays each CAV from the "
+                          "calibrated surrogate's derivative, and this run has no surrogate "
+                          f"({'a baseline' if not train else '--mode sumo'}). Fix: train with --mode hybrid "
+                          "or surrogate, or set reward_credit to 'group' (URB's rewards).")
     if task.human_learning_episodes < 1:
         raise ConfigError(f"{where}: key 'human_learning_episodes' is 0, but t_pre is measured on the "
                           "last human days. Fix: set it to 1 or more (200 in URB's configs).")
@@ -218,7 +225,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
         "drop_unroutable": drop_unroutable}
     t0 = time.perf_counter()
     setup = load_setup(args)
-    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True)
+    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=mode)
     config = _train_config(setup, args, human_phase_from)
     human = None  # checked before any results folder is created
     if human_phase_from:

@@ -18,7 +18,7 @@ from urb_jax.core.errors import ConfigError
 from urb_jax.core.urb_keys import ENV_FAMILY, TASK_FAMILY
 from urb_jax.game.humans import HumanParams
 from urb_jax.game.observations import OBSERVATION_TYPES
-from urb_jax.game.rewards import behaviour_coefficients
+from urb_jax.game.rewards import CREDITS, behaviour_coefficients
 
 DEMAND_MODES = ("auto", "sample", "duplicate")
 # URB's observation types (RouteRL routerl/environment/observations.py) urb-jax lacks, by feature.
@@ -56,6 +56,9 @@ class TaskConfig:
     demand_mode: str = "auto"  # auto: sample when < 1, duplicate when > 1
     demand_jitter_s: int = 60  # +- seconds of jitter for added/duplicated departures
     training_eps: int = 200  # CAV training days for baselines (URB baseline algo config1)
+    # "marginal": each CAV is paid its marginal effect on the behaviour's groups, from the calibrated
+    # surrogate's derivative (game.rewards.credit_rewards; hybrid and surrogate modes). "group": URB.
+    reward_credit: str = "group"
 
     def __post_init__(self) -> None:
         if isinstance(self.av_behavior, list):
@@ -69,6 +72,8 @@ class TaskConfig:
             raise ConfigError(f"key 'demand_scale' must be > 0, got {self.demand_scale}.")
         if self.demand_mode not in DEMAND_MODES:
             raise ConfigError(f"key 'demand_mode' must be one of {DEMAND_MODES}, got {self.demand_mode!r}.")
+        if self.reward_credit not in CREDITS:
+            raise ConfigError(f"key 'reward_credit' must be one of {CREDITS}, got {self.reward_credit!r}.")
         behaviour_coefficients(self.av_behavior)  # validates name / 4-tuple
         self.human_params()  # validates the human model
 

@@ -29,13 +29,14 @@ import numpy as np
 from urb_jax.city.scenario import Scenario
 from urb_jax.game.humans import HumanParams, HumanState, act, aon_routes, end_day, init_humans
 from urb_jax.game.observations import ObservationSpec, make_observation_spec, observe
-from urb_jax.game.rewards import cav_rewards
+from urb_jax.game.rewards import CREDITS, cav_rewards, credit_rewards, externalities
 
 # Parameters of travel_time_fn (a pytree, e.g. the surrogate's); None for a parameter-free model.
 EnvParams = Any
 # travel_time_fn(choices[N]) -> minutes [N], or travel_time_fn(params, choices[N]) with default_params.
 TravelTimeFn = Callable[..., jnp.ndarray]
 StepResult = tuple[jnp.ndarray, "EnvState", jnp.ndarray, jnp.ndarray, dict[str, jnp.ndarray]]
+Margins = tuple[jnp.ndarray, jnp.ndarray]  # (externalities [3, N], model times [N]): rewards.externalities
 
 
 class EnvState(NamedTuple):
@@ -57,8 +58,13 @@ class RoutingEnv:
     humans_adapt: bool = False  # humans keep learning while CAVs train
     human_init: HumanState | None = None  # trained human knowledge from the human phase
     default_params: EnvParams = None  # set: travel_time_fn takes (params, choices); step's default
+    # "marginal": CAVs are paid per-agent credit from the travel-time model's derivative
+    # (game.rewards.credit_rewards); travel_time_fn must then also take probabilities [N, K]
+    reward_credit: str = "group"
 
     def __post_init__(self) -> None:
+        if self.reward_credit not in CREDITS:
+            raise ValueError(f"reward_credit {self.reward_credit!r}: use one of {CREDITS}")
         scn = self.scenario
         is_cav = np.asarray(self.is_cav, dtype=bool)
         object.__setattr__(self, "is_cav", is_cav)
@@ -144,19 +150,36 @@ class RoutingEnv:
         (provisional obs for tomorrow, state, CAV rewards [C], dones [C] (every day ends the CAVs'
         episode, as in URB), info)."""
         choices = self.joint_actions(state, cav_actions)
+        if self.reward_credit == "marginal":
+            model = self.model_externalities(params, choices)
+            return self._end_day(key, state, cav_actions, choices, model[1], model)
         return self._end_day(key, state, cav_actions, choices, self.travel_times(params, choices))
 
+    def model_externalities(self, params: EnvParams, choices: jnp.ndarray) -> Margins:
+        """(externalities [3, N], model times [N]) of `choices` under travel_time_fn
+        (game.rewards.externalities)."""
+        return externalities(lambda probs: self.travel_times(params, probs), choices, self.is_cav,
+                             self.n_actions)
+
     def step_with_times(self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray,
-                        times: jnp.ndarray) -> StepResult:
-        """The same day with measured travel times [N] (minutes, e.g. SUMO's) of today's choices."""
-        return self._end_day(key, state, cav_actions, self.joint_actions(state, cav_actions), times)
+                        times: jnp.ndarray, model: Margins | None = None) -> StepResult:
+        """The same day with measured travel times [N] (minutes, e.g. SUMO's) of today's choices;
+        `model`: `model_externalities` of today's choices under a travel-time model (required with
+        reward_credit marginal: SUMO measures the day, the model its derivative)."""
+        return self._end_day(key, state, cav_actions, self.joint_actions(state, cav_actions), times, model)
 
     def _end_day(self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray, choices: jnp.ndarray,
-                 times: jnp.ndarray) -> StepResult:
+                 times: jnp.ndarray, model: Margins | None = None) -> StepResult:
         """The one day transition: CAV rewards, the humans' day end, tomorrow's human choices."""
         k_learn, k_act = jax.random.split(key)
         is_cav = jnp.asarray(self.is_cav)
-        rewards_all = cav_rewards(times, is_cav, self.reward_coefficients)
+        if self.reward_credit == "marginal":
+            if model is None:
+                raise ValueError("reward_credit 'marginal' needs the model's externalities of a measured day "
+                                 "(step_with_times(..., model=env.model_externalities(params, choices)))")
+            rewards_all = credit_rewards(times, is_cav, self.reward_coefficients, model[0])
+        else:
+            rewards_all = cav_rewards(times, is_cav, self.reward_coefficients)
         humans = end_day(k_learn, state.humans, choices, times, self.human_params, self.is_cav,
                          self.humans_learn)
         human_actions = act(k_act, humans, self.human_params, jnp.asarray(self.scenario.fft))

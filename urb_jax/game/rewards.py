@@ -6,8 +6,9 @@ Pure jax.numpy, so it runs inside jitted environments and on numpy SUMO days ali
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
+import jax
 import jax.numpy as jnp
 
 from urb_jax.core.errors import ConfigError
@@ -61,3 +62,42 @@ def cav_rewards(
     t_cav, t_hum, t_all = group_means(times, is_cav)
     shared = b * t_cav + c * t_hum + d * t_all
     return a * times + shared[..., None]
+
+
+CREDITS = ("group", "marginal")
+
+
+def externalities(travel_time: Callable[[jnp.ndarray], jnp.ndarray], choices: jnp.ndarray,
+                  is_cav: jnp.ndarray, k: int) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """(externalities [3, N], model times [N]) of a day's choices [N] under a differentiable day
+    model `travel_time(probabilities [N, K]) -> minutes [N]`, linear in each agent's own row.
+
+    externalities[g, i] = the delay agent i's trip adds to the members of group g (CAVs, humans,
+    everyone) other than itself: d(sum over g of t_j) / d(i's weight on its chosen route) (one
+    backward pass per group gives every agent's at once) minus, for a member of g, its own route
+    term t_i - t_i(P = 0) (what is left of t_i at zero weights, e.g. an insertion delay, does not
+    depend on i's route). Under a congestion model (flows never speed anyone up) they are >= 0."""
+    onehot = jax.nn.one_hot(choices, k, dtype=jnp.float32)
+    times, vjp = jax.vjp(travel_time, onehot)
+    base = travel_time(jnp.zeros_like(onehot))  # [N] the route-independent part of each time
+    is_cav = jnp.asarray(is_cav, dtype=bool)
+    member = jnp.stack([is_cav, ~is_cav, jnp.ones_like(is_cav)]).astype(times.dtype)  # [3, N]
+    grads = jax.vmap(lambda m: vjp(m)[0])(member)  # [3, N, K]
+    margins = jnp.take_along_axis(grads, choices.astype(jnp.int32)[None, :, None], axis=2)[..., 0]
+    return margins - member * (times - base)[None], times
+
+
+def credit_rewards(times: jnp.ndarray, is_cav: jnp.ndarray, coefficients: Sequence[float],
+                   externality: jnp.ndarray) -> jnp.ndarray:
+    """Per-agent credit (`reward_credit: marginal`): each group-mean term of the behaviour
+    (b T_CAV + c T_HDV + d T_all) becomes the agent's marginal effect on that group's total time,
+    R_i = a t_i + b M_CAV,i + c M_HDV,i + d M_all,i, M_g,i = [i in g] t_i + externality[g, i]:
+    the measured own time (SUMO's on a SUMO day) plus the delay the model says i adds to g's other
+    members (`externalities`). A cooperative CAV is paid -(t_i + the delay it adds to the other
+    CAVs): the linearised difference reward of the team objective, an agent-sized signal where the
+    group mean pays every CAV the same number whatever it did."""
+    a, b, c, d = (float(v) for v in coefficients)
+    is_cav = jnp.asarray(is_cav, dtype=bool)
+    member = jnp.stack([is_cav, ~is_cav, jnp.ones_like(is_cav)]).astype(times.dtype)  # [3, N]
+    m = member * times[None] + externality
+    return a * times + b * m[0] + c * m[1] + d * m[2]

@@ -35,8 +35,10 @@ class TrainerFns(NamedTuple):
     update: Callable[[Runner, Day, jax.Array], tuple[Runner, Metrics]]  # one update on given days
     act_explore: ActFn  # exploring policies on the real days
     act_greedy: ActFn  # frozen test policies on the real days
-    # (keys [S, P, 2], real [S, P], obs, actions, SUMO times [S, P, N]) -> (real, days [S, 1, P, ...])
-    sumo_step: Callable[[jax.Array, EnvState, jnp.ndarray, jnp.ndarray, jnp.ndarray], tuple[EnvState, Day]]
+    # (keys [S, R, 2], real [S, R], obs, actions, SUMO times [S, R, N], surrogate params [S])
+    #   -> (real, days [S, 1, R, ...]); the params give the marginal credit's derivative
+    sumo_step: Callable[[jax.Array, EnvState, jnp.ndarray, jnp.ndarray, jnp.ndarray, Params],
+                        tuple[EnvState, Day]]
     predict_days: Callable[[Params, jnp.ndarray], jnp.ndarray]  # surrogate times [S, P, N]
     split_p: Callable[[jax.Array], jax.Array]  # keys [S, 2] -> [S, P, 2]
     round_keys: Callable[[jax.Array, int], jax.Array]  # (keys [S, 2], round) -> [S, 4, 2]
@@ -83,9 +85,15 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
         return obs, actions, jax.vmap(real_env.joint_actions)(states, actions)
 
     def _sumo_step(keys: jax.Array, states: EnvState, obs: jnp.ndarray, actions: jnp.ndarray,
-                   times: jnp.ndarray) -> tuple[EnvState, Day]:
-        step = jax.vmap(real_env.step_with_times)
-        next_obs, states, rewards, dones, info = step(keys, states, actions, times)
+                   times: jnp.ndarray, params: Params) -> tuple[EnvState, Day]:
+        if real_env.reward_credit == "marginal":  # SUMO measures the day, the surrogate its derivative
+            choices = jax.vmap(real_env.joint_actions)(states, actions)
+            model = jax.vmap(lambda c: env.model_externalities(params, c))(choices)
+            step = jax.vmap(real_env.step_with_times)
+            next_obs, states, rewards, dones, info = step(keys, states, actions, times, model)
+        else:
+            step = jax.vmap(real_env.step_with_times)
+            next_obs, states, rewards, dones, info = step(keys, states, actions, times)
         day = Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"])
         return states, jax.tree_util.tree_map(lambda x: x[None], day)  # [1, P, ...]
 

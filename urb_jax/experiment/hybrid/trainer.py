@@ -132,7 +132,8 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
         return predict(params, static, choices)
 
     env_kwargs = dict(human_params=hp, reward_coefficients=task.reward_coefficients,
-                      observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt)
+                      observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt,
+                      reward_credit=task.reward_credit)
     p0 = {**init_params(static), "route_bias": jnp.zeros((n, scn.k), jnp.float32)}
     if humans is None:  # shapes only: the checkpoint overwrites it
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid), hp)
@@ -294,7 +295,8 @@ class HybridTrainer:
             results = self.executor.run_days(g.scn, choices.reshape(g.S * R, n), [g.env_seed] * (g.S * R),
                                              is_cav=g.is_cav)
             times = np.stack([res.travel_time for res in results]).astype(np.float32).reshape(g.S, R, n)
-            real, days = g.fns.sumo_step(keys_step[:, c:c + R], real, obs, actions, jnp.asarray(times))
+            real, days = g.fns.sumo_step(keys_step[:, c:c + R], real, obs, actions, jnp.asarray(times),
+                                         s.params)
             parts.append((choices, results, times, days))
         choices = np.concatenate([p[0] for p in parts], axis=1)
         results = [res for i in range(g.S) for p in parts for res in p[1][i * R:(i + 1) * R]]
@@ -355,7 +357,7 @@ class HybridTrainer:
         times[:, :b] = np.stack([res.travel_time for res in results]).reshape(g.S, b, n)
         times[:, b:] = times[:, :1]
         real, days = g.fns.sumo_step(g.fns.split_p(kt[:, 1])[:, :g.R], s.real, obs, actions,
-                                     jnp.asarray(times))
+                                     jnp.asarray(times), s.params)
         self.state = s._replace(real=real)
         for i in range(g.S):
             days_i = jax.tree_util.tree_map(lambda x, b=b, i=i: x[i, :, :b], days)
