@@ -19,7 +19,7 @@ from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.core.configio import Loaded
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.run import TrainArgs, TrainSetup, check_runnable, load_setup
-from urb_jax.experiment.run_folder import CONFIG_FILE, ResultsExistError, check_exp_id
+from urb_jax.experiment.run_folder import CONFIG_FILE, ResultsExistError, check_exp_id, train_run_names
 from urb_jax.experiment.urb_configs import train_configs
 
 
@@ -64,8 +64,7 @@ def _check_source(results_dir: Path, exp_id: str) -> None:
 def _folders(args: TrainArgs, setup: TrainSetup, seeds: list[int], exp_id: str | None, results_dir: Path,
              overwrite: bool) -> list[Path]:
     """The results folders `run_train` would create (same names), checked but not created."""
-    base = exp_id or f"{args['alg']}_{args['mode']}_{Path(args['net']).name}_{setup.task_path.stem}"
-    names = [exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}" for s in seeds]
+    names = train_run_names(exp_id, args["alg"], args["mode"], args["net"], setup.task_path.stem, seeds)
     folders = [results_dir / check_exp_id(name) for name in names]
     for folder in folders:
         if folder.exists() and not overwrite:

@@ -56,6 +56,7 @@ from urb_jax.experiment.run_folder import (
     create_results_dir,
     lock_run,
     mark_done,
+    train_run_names,
     versions,
     write_config,
     write_outputs,
@@ -231,9 +232,9 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     if human_phase_from:
         human = reuse_human_phase(Path(results_dir) / human_phase_from, config, setup.scn, setup.task,
                                   setup.hyb, env_seed, calibrate=mode != "sumo")
-    base = exp_id or f"{alg}_{mode}_{Path(net).name}_{setup.task_path.stem}"
-    folders = {s: create_results_dir(results_dir, exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}",
-                                     overwrite) for s in seeds}
+    names = train_run_names(exp_id, alg, mode, net, setup.task_path.stem, seeds)
+    folders = {s: create_results_dir(results_dir, name, overwrite)
+               for s, name in zip(seeds, names, strict=True)}
     configs = _seed_configs(config, args, seeds, folders, setup.hyb)
     log_run_to(folders[seeds[0]])  # beside the SUMO logs (the executor's log_dir)
     with _stops_cleanly(list(folders.values())), \

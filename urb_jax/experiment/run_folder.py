@@ -71,6 +71,14 @@ def lock_run(folder: Path) -> None:
     at_hard_exit(release)  # a Ctrl-C stop leaves with os._exit, where atexit does not run
 
 
+def train_run_names(exp_id: str | None, alg: str, mode: str, net: str, task_stem: str, seeds: list[int]
+                    ) -> list[str]:
+    """The results folder of each seed of a train run: `exp_id` itself for one seed, else
+    `<exp_id or alg_mode_net_task>_s<seed>` (the one naming rule of run, dry run and suite)."""
+    base = exp_id or f"{alg}_{mode}_{Path(net).name}_{task_stem}"
+    return [exp_id if (exp_id and len(seeds) == 1) else f"{base}_s{s}" for s in seeds]
+
+
 def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = False) -> Path:
     """A fresh results/<exp_id>/, locked by this process; refuses an existing one unless `overwrite`,
     and `overwrite` removes only a urb-jax run (a folder with exp_config.json) that no live
