@@ -24,10 +24,21 @@ SHOWN = ["t_pre", "t_CAV", "t_HDV_test", "t_test", "cost_of_learning", "delta_V"
 
 def collect(results_dir: str | os.PathLike) -> pd.DataFrame:
     """One row per finished run under results_dir (config keys + metrics)."""
+    rows = collect_folders(sorted(p.parent for p in Path(results_dir).glob("*/exp_config.json")))
+    if rows.empty:
+        raise UrbJaxError(
+            f"{results_dir}: no finished runs (exp_config.json + metrics/BenchmarkMetrics.csv)."
+        )
+    return rows
+
+
+def collect_folders(folders: list[Path]) -> pd.DataFrame:
+    """One row per finished run among `folders` (config keys, metrics and its folder)."""
     rows = []
-    for cfg_path in sorted(Path(results_dir).glob("*/exp_config.json")):
+    for folder in folders:
+        cfg_path = Path(folder) / "exp_config.json"
         metrics_path = cfg_path.parent / "metrics" / "BenchmarkMetrics.csv"
-        if not metrics_path.is_file():
+        if not (cfg_path.is_file() and metrics_path.is_file()):
             continue
         cfg = json.loads(cfg_path.read_text())
         metrics = pd.read_csv(metrics_path).iloc[0].to_dict()
@@ -35,14 +46,11 @@ def collect(results_dir: str | os.PathLike) -> pd.DataFrame:
         if optimum.is_file():
             metrics["optimality_gap"] = json.loads(optimum.read_text())["optimality_gap"]
         algorithm = cfg.get("algorithm") or f"baseline_{cfg.get('baseline_model', '?')}"
-        rows.append({"exp_id": cfg_path.parent.name, "network": cfg.get("network", "?"),
+        rows.append({"exp_id": cfg_path.parent.name, "folder": str(cfg_path.parent),
+                     "network": cfg.get("network", "?"),
                      "algorithm": algorithm, "task_config": cfg.get("task_config", "?"),
                      "env_config": cfg.get("env_config", "?"), "env_seed": cfg.get("env_seed"),
                      **metrics})
-    if not rows:
-        raise UrbJaxError(
-            f"{results_dir}: no finished runs (exp_config.json + metrics/BenchmarkMetrics.csv)."
-        )
     return pd.DataFrame(rows)
 
 

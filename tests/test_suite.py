@@ -1,0 +1,58 @@
+"""`urb_jax.experiment.suite`: a list of runs as one resumable job, then its tables and figures."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fakeday import FakeDay
+from test_hybrid_loop import FakeExecutor
+
+from urb_jax.experiment.suite import SuiteRun, run_suite, status, write_report
+from urb_jax.reporting.records import read_records
+
+
+def _runs(conf: Path, executor: FakeExecutor, day: FakeDay, **train_extra) -> list[SuiteRun]:
+    return [SuiteRun("train", "iqls", {"alg": "iql_star", "task_conf": "test", "hybrid_conf": str(conf),
+                                       "seeds": [0, 1], "executor": executor, **train_extra}),
+            SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test", "day_fn": day})]
+
+
+@pytest.mark.slow
+def test_suite_resumes_skips_and_reports(tmp_path):
+    conf = tmp_path / "hyb.json"
+    conf.write_text(json.dumps({"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4,
+                                "sumo_days_per_round": 2, "sumo_workers": 1, "calib_human_days": 5,
+                                "calib_varied_days": 2, "calib_steps": 20, "refit_days": 4,
+                                "refit_steps": 5}))
+    results = tmp_path / "results"
+    # a reference suite, run straight through
+    ref = run_suite(_runs(conf, FakeExecutor(), FakeDay()), tmp_path / "ref", progress=False,
+                    log=lambda _: None)
+    # the same suite killed after the train run's first round (the baseline never started) ...
+    killed = _runs(conf, FakeExecutor(), FakeDay(), stop_after_round=1)
+    run_suite(killed[:1], results, progress=False, log=lambda _: None)
+    assert [status(results, r) for r in killed] == ["stopped", "new"]
+    # ... then run again: the train run resumes from its checkpoint, the baseline starts
+    lines: list[str] = []
+    folders = run_suite(_runs(conf, FakeExecutor(), FakeDay()), results, progress=False, log=lines.append)
+    assert "resuming" in lines[0] and "starting" in lines[1]
+    assert [f.name for f in folders] == ["iqls_s0", "iqls_s1", "aon"]
+    for a, b in zip(ref, folders, strict=True):  # the resumed suite ends exactly like the straight one
+        pd.testing.assert_frame_equal(read_records(a), read_records(b))
+    # a third time: everything finished, nothing simulated
+    ex, day = FakeExecutor(), FakeDay()
+    lines.clear()
+    run_suite(_runs(conf, ex, day), results, progress=False, log=lines.append)
+    assert all("skipped" in line for line in lines) and not ex.batches and not day.calls
+    # the report: a table row per algorithm with both seeds, and a figure per run group
+    report = write_report("test suite", folders, tmp_path / "report")
+    text = report.read_text()
+    assert "| iql_star | 2 |" in text and "| baseline_aon | 1 |" in text
+    assert sorted(p.name for p in (tmp_path / "report" / "figures").iterdir()) == [
+        "urb_grid_baseline_aon_test.png", "urb_grid_iql_star_test.png"]

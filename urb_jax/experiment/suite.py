@@ -1,0 +1,91 @@
+"""Run a list of experiments as one resumable job, then write their tables and figures.
+
+A suite is a list of `SuiteRun`s (a catalogue entry expands into them): each is a `urb-jax train`
+(its seeds trained together) or `urb-jax baseline`, with a fixed experiment id. Running the suite
+again skips the runs that finished, resumes the ones that were stopped (`resume_train`: their
+newest checkpoint), and starts the others; so a killed suite continues where it was. Every run
+prints its own progress; the suite adds a line per run.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from urb_jax.core.atomic import write_text
+from urb_jax.experiment.run import resume_train, run_baseline, run_train
+from urb_jax.experiment.run_folder import CONFIG_FILE, train_run_names
+from urb_jax.reporting.suite_report import suite_figures, suite_tables
+
+KINDS = ("train", "baseline")
+
+
+@dataclass(frozen=True)
+class SuiteRun:
+    """One experiment of a suite: `run_train(**kwargs)` (kind train, with `seeds`) or
+    `run_baseline(**kwargs)` (kind baseline), under `exp_id`."""
+
+    kind: str
+    exp_id: str
+    kwargs: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"SuiteRun kind {self.kind!r}: use one of {KINDS}")
+
+    def folder_names(self) -> list[str]:
+        if self.kind == "baseline":
+            return [self.exp_id]
+        seeds = list(self.kwargs.get("seeds") or [0])
+        return train_run_names(self.exp_id, alg="", mode="", net="", task_stem="", seeds=seeds)
+
+
+def status(results_dir: Path, run: SuiteRun) -> str:
+    """'done' (every folder finished), 'stopped' (a folder exists, not finished) or 'new'."""
+    states = []
+    for name in run.folder_names():
+        cfg = results_dir / name / CONFIG_FILE
+        states.append(json.loads(cfg.read_text()).get("status") if cfg.is_file() else None)
+    if all(s == "done" for s in states):
+        return "done"
+    return "stopped" if any(s is not None for s in states) else "new"
+
+
+def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = True,
+              log: Callable[[str], None] = print) -> list[Path]:
+    """Every run of the suite, finished ones skipped and stopped ones resumed; their folders."""
+    results_dir = Path(results_dir)
+    folders: list[Path] = []
+    t0 = time.perf_counter()
+    for i, run in enumerate(runs, 1):
+        state = status(results_dir, run)
+        log(f"suite: run {i}/{len(runs)} {run.exp_id} ({run.kind}): "
+            f"{ {'done': 'finished before, skipped', 'stopped': 'resuming', 'new': 'starting'}[state] }, "
+            f"{time.perf_counter() - t0:.0f} s into the suite")
+        if state == "stopped" and run.kind == "train":
+            resume_train(run.folder_names()[0], results_dir=str(results_dir), progress=progress,
+                         executor=run.kwargs.get("executor"))
+        elif state == "stopped":  # a baseline has no checkpoint: it starts again in its own folder
+            run_baseline(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, overwrite=True,
+                         **run.kwargs)
+        elif state == "new" and run.kind == "train":
+            run_train(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **run.kwargs)
+        elif state == "new":
+            run_baseline(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **run.kwargs)
+        folders += [results_dir / name for name in run.folder_names()]
+    return folders
+
+
+def write_report(title: str, folders: list[Path], out_dir: str | Path, preamble: str = "") -> Path:
+    """`out_dir/README.md` (the tables, figure links) and `out_dir/figures/*.png`, written atomically."""
+    out_dir = Path(out_dir)
+    figures = suite_figures(folders, out_dir / "figures")
+    text = [f"# {title}", "", preamble, "", suite_tables(folders), "## Figures", ""]
+    text += [f"![{p.stem}](figures/{p.name})" for p in figures]
+    path = out_dir / "README.md"
+    write_text(path, "\n".join(text) + "\n")
+    return path

@@ -1,0 +1,93 @@
+"""An experiment suite's results in the paper's layout: one table per (network, task) with a row per
+algorithm (mean ± std over seeds, both trip measures), and one figure per row group: the mean
+travel time of CAVs, humans and everyone over the days, averaged over seeds, with the phases as
+background patches, as the URB paper's figures show them."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from urb_jax.reporting.leaderboard import KEYS, aggregate, collect_folders
+from urb_jax.reporting.records import read_records
+
+TABLE_COLUMNS = [("t_pre", "t_pre"), ("t_CAV", "t_CAV"), ("t_HDV_test", "t_HDV"), ("t_test", "t_all"),
+                 ("cost_of_learning", "c_all"), ("delta_V", "ΔV"), ("delta_L", "ΔL"),
+                 ("t_pre_duration", "t_pre (dur.)"), ("t_CAV_duration", "t_CAV (dur.)")]
+
+
+def suite_tables(folders: list[Path]) -> str:
+    """Markdown: a table per (network, task config), a row per algorithm, mean ± std over seeds."""
+    runs = collect_folders(folders)
+    table = aggregate(runs)
+    out = []
+    for (net, task), g in table.groupby(["network", "task_config"], sort=True):
+        out.append(f"### {net}, task {task}\n")
+        head = ["algorithm", "seeds", "WR %", *[name for _, name in TABLE_COLUMNS]]
+        out.append("| " + " | ".join(head) + " |")
+        out.append("|" + "---|" * len(head))
+        for _, r in g.iterrows():
+            cells = [str(r["algorithm"]), str(int(r["runs"])), _num(r.get("WR"), 0)]
+            for col, _ in TABLE_COLUMNS:
+                mean, std = r.get(f"{col}_mean", np.nan), r.get(f"{col}_std", np.nan)
+                cells.append(_num(mean) + (f" ± {std:.4f}" if r["runs"] > 1 and std == std else ""))
+            out.append("| " + " | ".join(cells) + " |")
+        out.append("")
+    return "\n".join(out)
+
+
+def _num(x: float | None, digits: int = 4) -> str:
+    return "n/a" if x is None or x != x else f"{x:.{digits}f}"
+
+
+def per_day_means(folder: Path) -> tuple[pd.DataFrame, int, int]:
+    """(mean travel time per record day and group CAV/HDV/all, human days, SUMO training days)."""
+    cfg = json.loads((folder / "exp_config.json").read_text())
+    rec = read_records(folder, columns=["day", "agent", "kind", "travel_time"])
+    final_kind = rec[rec["day"] == rec["day"].max()].set_index("agent")["kind"]
+    rec = rec.assign(group=rec["agent"].map(final_kind))
+    per_day = rec.groupby(["day", "group"])["travel_time"].mean().unstack()
+    per_day["all"] = rec.groupby("day")["travel_time"].mean()
+    H = int(cfg.get("human_days", 0))
+    T = int(cfg.get("sumo_training_days", cfg.get("training_days", 0)))
+    return per_day, H, T
+
+
+def suite_figures(folders: list[Path], out_dir: Path) -> list[Path]:
+    """One PNG per (network, algorithm, task): the seeds' per-day group means, averaged."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = collect_folders(folders)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for key, g in runs.groupby(KEYS, sort=True):
+        name = "_".join(str(k) for k in key[:3]).replace("/", "-")
+        days = [per_day_means(Path(f)) for f in g["folder"]]
+        mean = pd.concat([d[0] for d in days]).groupby(level=0).mean()
+        H, T = days[0][1], days[0][2]
+        last = int(mean.index.max())
+        fig, ax = plt.subplots(figsize=(9, 4.5))
+        for start, end, label, color in ((0.5, H + 0.5, "human learning", "#e8f0fe"),
+                                         (H + 0.5, H + T + 0.5, "CAV training (SUMO days)", "#fff4e0"),
+                                         (H + T + 0.5, last + 0.5, "test", "#e6f4ea")):
+            if end > start:
+                ax.axvspan(start, end, color=color, label=label, zorder=0)
+        for col, color in (("all", "black"), ("HDV", "tab:blue"), ("CAV", "tab:red")):
+            if col in mean:
+                ax.plot(mean.index, mean[col], color=color, lw=1.2, label=col)
+        ax.set_title(f"{key[0]}: {key[1]}, task {key[2]} ({len(days)} seed{'s' * (len(days) > 1)})")
+        ax.set_xlabel("day (SUMO days as recorded)")
+        ax.set_ylabel("mean travel time (min)")
+        ax.legend(fontsize=8, loc="best")
+        fig.tight_layout()
+        path = out_dir / f"{name}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written
