@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -56,3 +57,22 @@ def test_suite_resumes_skips_and_reports(tmp_path):
     assert "| iql_star | 2 |" in text and "| baseline_aon | 1 |" in text
     assert sorted(p.name for p in (tmp_path / "report" / "figures").iterdir()) == [
         "urb_grid_baseline_aon_test.png", "urb_grid_iql_star_test.png"]
+
+
+@pytest.mark.parametrize("runs, message", [
+    ([{"kind": "train", "id": "a", "args": {"alg": "iql", "lr": 0.1}}],
+     "args \\['lr'\\] are not train arguments"),
+    ([{"kind": "sweep", "id": "a"}], "needs 'kind'"),
+    ([{"kind": "baseline", "id": "a", "args": {"model": "aon"}}, {"kind": "baseline", "id": "a"}],
+     "used twice"),
+])
+def test_bad_suite_files_exit_2_naming_the_field(tmp_path, capsys, runs, message):
+    from urb_jax.commands.cli import main
+
+    path = tmp_path / "suite.json"
+    path.write_text(json.dumps({"title": "t", "runs": runs}))
+    assert main(["suite", str(path), "--results-dir", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "Fix:" in err
+    assert re.search(message, err)
+    assert not (tmp_path / "r").exists()

@@ -14,4 +14,5 @@ COMMANDS = [
     "urb_jax.commands.metrics",
     "urb_jax.commands.train",
     "urb_jax.commands.optimum",
+    "urb_jax.commands.suite",
 ]

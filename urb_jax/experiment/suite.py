@@ -9,6 +9,7 @@ prints its own progress; the suite adds a line per run.
 
 from __future__ import annotations
 
+import inspect
 import json
 import time
 from collections.abc import Callable
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from urb_jax.core.atomic import write_text
+from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.run import resume_train, run_baseline, run_train
 from urb_jax.experiment.run_folder import CONFIG_FILE, train_run_names
 from urb_jax.reporting.suite_report import suite_figures, suite_tables
@@ -89,3 +91,48 @@ def write_report(title: str, folders: list[Path], out_dir: str | Path, preamble:
     path = out_dir / "README.md"
     write_text(path, "\n".join(text) + "\n")
     return path
+
+
+# Keyword arguments a suite file may give each kind (the commands' own flags, as Python names).
+_NOT_FROM_FILES = {"exp_id", "results_dir", "progress", "executor", "day_fn", "stop_after_round", "overwrite"}
+ALLOWED_ARGS = {kind: set(inspect.signature(fn).parameters) - _NOT_FROM_FILES
+                for kind, fn in (("train", run_train), ("baseline", run_baseline))}
+
+
+@dataclass(frozen=True)
+class SuiteSpec:
+    """A suite file: {"title", "preamble"?, "runs": [{"kind", "id", "args": {...}}, ...]}."""
+
+    title: str
+    preamble: str
+    runs: list[SuiteRun]
+
+
+def load_suite(path: str | Path) -> SuiteSpec:
+    """A suite file, validated: every run's kind, id and argument names (run_train's or
+    run_baseline's keywords); unique ids."""
+    path = Path(path)
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read a suite file ({exc}). Fix: pass a JSON file with "
+                          '{"title": ..., "runs": [{"kind": "train", "id": ..., "args": {...}}]}.') from None
+    unknown = set(raw) - {"title", "preamble", "runs"}
+    if unknown or "runs" not in raw:
+        raise ConfigError(f"{path}: keys {sorted(unknown) or 'no runs'}. Fix: use title, preamble and runs.")
+    runs, seen = [], set()
+    for i, r in enumerate(raw["runs"]):
+        where = f"{path}: runs[{i}]"
+        kind, exp_id, args = r.get("kind"), r.get("id"), r.get("args", {})
+        if kind not in KINDS or not exp_id or set(r) - {"kind", "id", "args"}:
+            raise ConfigError(f"{where}: needs 'kind' (one of {KINDS}), 'id' and 'args', and nothing else. "
+                              "Fix: write it so.")
+        bad = set(args) - ALLOWED_ARGS[kind]
+        if bad:
+            raise ConfigError(f"{where}: args {sorted(bad)} are not {kind} arguments. Fix: use some of "
+                              f"{sorted(ALLOWED_ARGS[kind])}.")
+        if exp_id in seen:
+            raise ConfigError(f"{where}: id '{exp_id}' is used twice. Fix: give every run its own id.")
+        seen.add(exp_id)
+        runs.append(SuiteRun(kind, exp_id, dict(args)))
+    return SuiteSpec(str(raw.get("title", path.stem)), str(raw.get("preamble", "")), runs)
