@@ -76,3 +76,14 @@ def test_bad_suite_files_exit_2_naming_the_field(tmp_path, capsys, runs, message
     assert str(path) in err and "Fix:" in err
     assert re.search(message, err)
     assert not (tmp_path / "r").exists()
+
+
+def test_every_shipped_suite_loads():
+    from urb_jax.core.configio import configs_dir
+    from urb_jax.experiment.suite import load_suite
+
+    files = sorted((configs_dir() / "suites").glob("*.json"))
+    assert files
+    for path in files:
+        spec = load_suite(path)
+        assert spec.runs and len({r.exp_id for r in spec.runs}) == len(spec.runs)

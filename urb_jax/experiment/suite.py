@@ -136,3 +136,19 @@ def load_suite(path: str | Path) -> SuiteSpec:
         seen.add(exp_id)
         runs.append(SuiteRun(kind, exp_id, dict(args)))
     return SuiteSpec(str(raw.get("title", path.stem)), str(raw.get("preamble", "")), runs)
+
+
+def select(spec: SuiteSpec, only: str | None, networks_dir: str | None) -> SuiteSpec:
+    """The suite's runs named in `only` (comma-separated ids; None: all), each given
+    `networks_dir` where its args name none."""
+    runs = spec.runs
+    if only:
+        wanted = [x.strip() for x in only.split(",") if x.strip()]
+        missing = sorted(set(wanted) - {r.exp_id for r in runs})
+        if missing:
+            raise ConfigError(f"--only {missing}: not runs of this suite. Fix: use some of "
+                              f"{[r.exp_id for r in runs]}.")
+        runs = [r for r in runs if r.exp_id in wanted]
+    if networks_dir:
+        runs = [SuiteRun(r.kind, r.exp_id, {"networks_dir": networks_dir, **r.kwargs}) for r in runs]
+    return SuiteSpec(spec.title, spec.preamble, runs)
