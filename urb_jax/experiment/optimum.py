@@ -280,7 +280,8 @@ class Refiner:
         fit = dataclasses.replace(REFIT, steps=self.cfg.refit_steps)
         self.params = fit_with_bias(self.params, self.prob.static, sub, fit, self.data, self.cfg.bias_prior)
 
-    def loop(self, label: str, search: Callable[[Params, np.ndarray], list[np.ndarray]], start: np.ndarray,
+    def loop(self, label: str, search: Callable[[Params, np.ndarray], list[tuple[str, np.ndarray]]],
+             start: np.ndarray,
              keep_best: bool, log: Callable[[str], None]) -> tuple[SumoDay, list[SumoDay]]:
         """`sumo_rounds` rounds of search -> its candidates' SUMO days -> refit; returns the best
         SUMO day (`keep_best`, searching on from it) or the last, and every day measured."""
@@ -288,9 +289,10 @@ class Refiner:
         current = start
         for r in range(self.cfg.sumo_rounds):
             cands = search(self.params, current)
-            days = self.measure_all(f"{label}_round{r + 1}", cands)
+            days = [self.measure(f"{label}_round{r + 1}_{kind}", c) for kind, c in cands]
             if keep_best and self.cfg.screened_moves:  # SUMO judges the model's best single moves
-                days += self.screened(f"{label}_round{r + 1}", min(history + days, key=lambda d: d.objective))
+                days += self.screened(f"{label}_round{r + 1}_screened",
+                                      min(history + days, key=lambda d: d.objective))
             history += days
             log(f"{label} round {r + 1}/{self.cfg.sumo_rounds}: {len(days)} SUMO days, best SUMO J "
                 f"{min(history, key=lambda d: d.objective).objective:.4f}")
@@ -320,7 +322,7 @@ class Refiner:
 
 
 def optimum_search(prob: Problem, cfg: SearchConfig, rng: np.random.Generator
-                   ) -> Callable[[Params, np.ndarray], list[np.ndarray]]:
+                   ) -> Callable[[Params, np.ndarray], list[tuple[str, np.ndarray]]]:
     """The optimum's search, two candidates a round: a trust-region step (at most `trust_moves`
     single-CAV moves from the best SUMO day so far, so SUMO measures what the model proposes before
     it proposes more), and a global one (relaxed descent from it, AON and random starts, each
@@ -337,7 +339,7 @@ def optimum_search(prob: Problem, cfg: SearchConfig, rng: np.random.Generator
         cands = [local_search(prob, params, relaxed_search(prob, params, s, cfg), cfg.max_moves)
                  for s in starts]
         j = prob.objective(params, np.stack(cands))
-        return [step, cands[int(np.argmin(j))]]
+        return [("trust", step), ("global", cands[int(np.argmin(j))])]
 
     return search
 
@@ -416,8 +418,10 @@ def run_references(folder: str | Path, networks_dir: str | None = None, cfg: Sea
         rng = np.random.default_rng(cfg.seed)
         opt, opt_hist = ref.loop("optimum", optimum_search(prob, cfg, rng), start, True, log)
         opt = min((opt, run_day, aon_day), key=lambda d: d.objective)  # the optimum is the best day seen
-        eq, eq_hist = ref.loop("equilibrium", lambda p, c: [best_response(prob, p, c, cfg, rng)], prob.fixed,
-                               False, log)
+        def respond(p: Params, c: np.ndarray) -> list[tuple[str, np.ndarray]]:
+            return [("best_response", best_response(prob, p, c, cfg, rng))]
+
+        eq, eq_hist = ref.loop("equilibrium", respond, prob.fixed, False, log)
         # the optimum reference is the best SUMO day any search found (the equilibrium's included)
         opt = min([opt, *eq_hist], key=lambda d: d.objective)
     finally:
