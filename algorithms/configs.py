@@ -66,12 +66,18 @@ class MixerConfig(TorchRLCommon):
     # its own travel-time scale, which Adam resolves with hundreds of CAVs; Q_tot and the target are
     # unchanged (docs/algorithms.md, "Per-CAV Q scale").
     q_scale: str = "team"
+    # Weight of a per-CAV TD term (Q_i toward the CAV's own day reward) next to the mixer's team TD:
+    # with reward_credit "marginal" each CAV's Q then learns its own marginal effect, which the team
+    # mean alone cannot teach it (docs/algorithms.md, "Per-CAV credit"). 0: URB's loss.
+    agent_credit: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.q_scale not in ("team", "own"):
-            from urb_jax.core.errors import ConfigError
+        from urb_jax.core.errors import ConfigError
 
+        if self.q_scale not in ("team", "own"):
             raise ConfigError(f"key 'q_scale' is {self.q_scale!r}. Fix: use 'team' (URB) or 'own'.")
+        if self.agent_credit < 0:
+            raise ConfigError(f"key 'agent_credit' is {self.agent_credit}. Fix: use a weight >= 0.")
 
 
 @dataclass(frozen=True)

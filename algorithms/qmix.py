@@ -80,9 +80,11 @@ def make_mixer(config: MixerConfig, env: RoutingEnv, mixer: str) -> nn.Module:
 
 
 def mixed_td_loss(q_apply, mix_apply, params: Any, target: Any, batch: Day, mask: jnp.ndarray,
-                  gamma: float, state_fn, q_scale: float = 1.0) -> jnp.ndarray:
+                  gamma: float, state_fn, q_scale: float = 1.0, agent_credit: float = 0.0) -> jnp.ndarray:
     """Mean squared TD(0) error of Q_tot on the team reward (mean over CAVs) per day; the mixer
-    sees each CAV's Q times `q_scale` (1, or 1/C for per-CAV Qs on their own scale)."""
+    sees each CAV's Q times `q_scale` (1, or 1/C for per-CAV Qs on their own scale). `agent_credit`
+    > 0 adds that weight times each CAV's own TD error (Q_i toward its own reward, on the scale the
+    mixer gives Q_i: reward / (C q_scale))."""
     q = q_apply(params["agent"], batch.obs)  # [M, C, K]
     q_a = jnp.take_along_axis(q, batch.action[..., None], axis=-1)[..., 0]
     q_tot = mix_apply(params["mixer"], q_scale * q_a, state_fn(batch.obs))
@@ -91,7 +93,12 @@ def mixed_td_loss(q_apply, mix_apply, params: Any, target: Any, batch: Day, mask
     team_reward = batch.reward.mean(-1)
     done = batch.done.all(-1).astype(jnp.float32)
     y = team_reward + gamma * (1.0 - done) * q_tot_next
-    return jnp.mean((q_tot - jax.lax.stop_gradient(y)) ** 2)
+    loss = jnp.mean((q_tot - jax.lax.stop_gradient(y)) ** 2)
+    if agent_credit > 0.0:  # static: URB's loss compiles without it
+        unit = 1.0 / (q_a.shape[-1] * q_scale)  # the share of the team reward one Q_i stands for
+        y_i = unit * batch.reward + gamma * (1.0 - batch.done.astype(jnp.float32)) * q_next
+        loss = loss + agent_credit * jnp.mean((q_a - jax.lax.stop_gradient(y_i)) ** 2)
+    return loss
 
 
 def make_network(config: MixerConfig, env: RoutingEnv):
@@ -128,7 +135,7 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
 
     def loss_fn(params: Any, target: Any, batch: Day) -> jnp.ndarray:
         return mixed_td_loss(net.apply, mix.apply, params, target, batch, mask, config.gamma, state_fn,
-                             q_scale)
+                             q_scale, config.agent_credit)
 
     def init(key: jax.Array) -> RunnerState:
         k_agent, k_mix, k_env, _ = jax.random.split(key, 4)

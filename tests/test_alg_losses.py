@@ -77,6 +77,25 @@ def test_own_q_scale_feeds_q_over_c_to_the_mixer():
         MixerConfig(q_scale="sum")
 
 
+def test_agent_credit_adds_each_cavs_own_td_error():
+    batch = day_batch([-2.0, -4.0], [False, False])
+    params = {"agent": Q_ONLINE, "mixer": {}}
+    target = {"agent": Q_TARGET, "mixer": {}}
+    args = (fake_q, VDNMixer().apply, params, target, batch, MASK, 0.5, lambda o: o.reshape(1, -1))
+    base = float(mixed_td_loss(*args, q_scale=0.5))
+    with_credit = float(mixed_td_loss(*args, q_scale=0.5, agent_credit=0.3))
+    # own scale (C = 2, q_scale 1/2): Q_i targets its own reward + gamma * its masked max
+    y_i = np.array([-2.0 + 0.5 * 4.0, -4.0 + 0.5 * 3.0])
+    per_agent = np.mean((np.array([2.0, -1.0]) - y_i) ** 2)
+    assert with_credit == pytest.approx(base + 0.3 * per_agent)
+    # team scale: Q_i stands for 1/C of the team reward, so its own target is reward / C
+    team = float(mixed_td_loss(*args, q_scale=1.0, agent_credit=1.0)) - float(mixed_td_loss(*args))
+    y_team = np.array([-2.0 / 2 + 0.5 * 4.0, -4.0 / 2 + 0.5 * 3.0])
+    assert team == pytest.approx(np.mean((np.array([2.0, -1.0]) - y_team) ** 2))
+    with pytest.raises(ConfigError, match="'agent_credit' is -1"):
+        MixerConfig(agent_credit=-1)
+
+
 def test_qmix_mixer_matches_reference_and_is_monotonic():
     mixer = QMixer(n_agents=3, embed_dim=5)
     key = jax.random.PRNGKey(0)
