@@ -166,6 +166,18 @@ def write_run_metrics(folder: Path, human_days: int,
     return metrics, records
 
 
+def plot_phases(ax, per_day: pd.DataFrame, H: int, T: int, last_day: int, suffix: str = "") -> None:
+    """Group means per day (columns all/HDV/CAV) over the phases as background patches."""
+    for start, end, label, color in ((0.5, H + 0.5, "human learning", "#e8f0fe"),
+                                     (H + 0.5, H + T + 0.5, "CAV training", "#fff4e0"),
+                                     (H + T + 0.5, last_day + 0.5, "test", "#e6f4ea")):
+        if end > start:
+            ax.axvspan(start, end, color=color, label=label, zorder=0)
+    for col, color in (("all", "black"), ("HDV", "tab:blue"), ("CAV", "tab:red")):
+        if col in per_day:
+            ax.plot(per_day.index, per_day[col], color=color, lw=1.2, label=f"{col}{suffix}")
+
+
 def write_plots(folder: Path, records: pd.DataFrame, human_days: int, training_days: int,
                 smooth_by: int = 1) -> list[Path]:
     """Mean travel time per day by group with phase backgrounds; CAV vs HDV test distributions."""
@@ -183,15 +195,8 @@ def write_plots(folder: Path, records: pd.DataFrame, human_days: int, training_d
     per_day = rec.groupby(["day", "group"])["travel_time"].mean().unstack()
     per_day["all"] = rec.groupby("day")["travel_time"].mean()
     fig, ax = plt.subplots(figsize=(9, 4.5))
-    for start, end, label, color in ((0.5, H + 0.5, "human learning", "#e8f0fe"),
-                                     (H + 0.5, H + T + 0.5, "CAV training", "#fff4e0"),
-                                     (H + T + 0.5, last_day + 0.5, "test", "#e6f4ea")):
-        if end > start:
-            ax.axvspan(start, end, color=color, label=label, zorder=0)
-    for col, color in (("all", "black"), ("HDV", "tab:blue"), ("CAV", "tab:red")):
-        if col in per_day:
-            y = per_day[col].rolling(max(smooth_by, 1), min_periods=1).mean()
-            ax.plot(per_day.index, y, color=color, lw=1.2, label=f"{col} (agents by final kind)")
+    plot_phases(ax, per_day.rolling(max(smooth_by, 1), min_periods=1).mean(), H, T, last_day,
+                " (agents by final kind)")
     ax.set_xlabel("day")
     ax.set_ylabel("mean travel time (min)")
     ax.legend(fontsize=8, loc="best")

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from urb_jax.reporting.leaderboard import KEYS, aggregate, collect_folders
-from urb_jax.reporting.records import read_records
+from urb_jax.reporting.records import plot_phases, read_records
 
 TABLE_COLUMNS = [("t_pre", "t_pre"), ("t_CAV", "t_CAV"), ("t_HDV_test", "t_HDV"), ("t_test", "t_all"),
                  ("cost_of_learning", "c_all"), ("delta_V", "ΔV"), ("delta_L", "ΔL"),
@@ -73,14 +73,7 @@ def suite_figures(folders: list[Path], out_dir: Path) -> list[Path]:
         H, T = days[0][1], days[0][2]
         last = int(mean.index.max())
         fig, ax = plt.subplots(figsize=(9, 4.5))
-        for start, end, label, color in ((0.5, H + 0.5, "human learning", "#e8f0fe"),
-                                         (H + 0.5, H + T + 0.5, "CAV training (SUMO days)", "#fff4e0"),
-                                         (H + T + 0.5, last + 0.5, "test", "#e6f4ea")):
-            if end > start:
-                ax.axvspan(start, end, color=color, label=label, zorder=0)
-        for col, color in (("all", "black"), ("HDV", "tab:blue"), ("CAV", "tab:red")):
-            if col in mean:
-                ax.plot(mean.index, mean[col], color=color, lw=1.2, label=col)
+        plot_phases(ax, mean, H, T, last)
         ax.set_title(f"{key[0]}: {key[1]}, task {key[2]} ({len(days)} seed{'s' * (len(days) > 1)})")
         ax.set_xlabel("day (SUMO days as recorded)")
         ax.set_ylabel("mean travel time (min)")
