@@ -85,3 +85,14 @@ def test_every_catalogue_network_is_a_shared_urb_network(real_networks_dir):
         for run in load_suite(find_config("suites", name)).runs:
             net = run.kwargs["net"]
             assert (real_networks_dir / net / f"{net}.net.xml").is_file(), (name, net)
+
+
+def test_suite_list_names_every_shipped_suite(capsys):
+    from urb_jax.commands.cli import main
+
+    assert main(["suite", "--list"]) == 0
+    out = capsys.readouterr().out
+    for name in [*CATALOGUE, "nine_networks"]:
+        assert f"\n{name} " in f"\n{out}"
+    assert "15 train runs (75 seed folders), 6 baselines" in out  # scenario1: 3 networks x 5 algs x 5 seeds
+    assert main(["suite"]) == 2  # no suite named: the list, and exit 2

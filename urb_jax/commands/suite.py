@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "suite", help="run a suite file's experiments as one resumable job (finished runs are skipped, "
                       "stopped ones resumed), then write their tables and figures")
-    parser.add_argument("suite", help='a suite id (configs/suites/<id>.json, e.g. nine_networks) or file: '
-                                      '{"title", "runs": [{"kind": "train"|"baseline", "id", '
-                                      '"args": {run_train / run_baseline arguments}}]}')
+    parser.add_argument("suite", nargs="?",
+                        help='a suite id (configs/suites/<id>.json, e.g. scenario1; see --list) or a file: '
+                             '{"title", "runs": [{"kind": "train"|"baseline", "id", '
+                             '"args": {run_train / run_baseline arguments}}]}')
     parser.add_argument("--networks-dir", default=None,
                         help="folder of URB networks, for every run whose args do not name one")
     parser.add_argument("--only", default=None, help="comma-separated run ids: run (and report) just these")
@@ -19,6 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", default=None, help="report folder (default: RESULTS_DIR/suite_<file stem>)")
     parser.add_argument("--no-progress", action="store_true", help="plain progress lines only")
     parser.add_argument("--report-only", action="store_true", help="write the report of the finished runs")
+    parser.add_argument("--list", action="store_true",
+                        help="list the shipped suites (the paper's catalogue and the others) and exit")
     parser.set_defaults(func=run)
 
 
@@ -28,6 +32,8 @@ def run(args: argparse.Namespace) -> int:
     from urb_jax.core.configio import find_config
     from urb_jax.experiment.suite import load_suite, run_suite, select, status, write_report
 
+    if args.list or not args.suite:
+        return _list(args.list)
     spec = select(load_suite(find_config("suites", args.suite)), args.only, args.networks_dir)
     results = Path(args.results_dir)
     if args.report_only:
@@ -38,3 +44,19 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else results / f"suite_{Path(args.suite).stem}"
     print(f"report: {write_report(spec.title, folders, out, spec.preamble)}")
     return 0
+
+
+def _list(asked: bool) -> int:
+    """Every shipped suite: id, title, and what it runs (train runs x seeds, baselines)."""
+    from urb_jax.core.configio import configs_dir
+    from urb_jax.experiment.suite import load_suite
+
+    for path in sorted((configs_dir() / "suites").glob("*.json")):
+        spec = load_suite(path)
+        trains = [r for r in spec.runs if r.kind == "train"]
+        folders = sum(len(r.folder_names()) for r in trains)
+        print(f"{path.stem:28s} {spec.title}\n{'':28s} {len(trains)} train runs ({folders} seed folders), "
+              f"{len(spec.runs) - len(trains)} baselines")
+    if not asked:
+        print("urb-jax suite: name a suite (one of the above) or a suite file.", file=sys.stderr)
+    return 0 if asked else 2
