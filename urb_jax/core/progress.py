@@ -55,6 +55,14 @@ class Progress:
         if self.bar is None:
             self._line()
 
+    def note(self, text: str) -> None:
+        """A line of its own (an estimate, a warning), above the bar when there is one; printed with
+        or without `--no-progress`."""
+        if self.bar is not None:
+            self.bar.write(text, file=self.stream)
+        else:
+            print(text, file=self.stream, flush=True)
+
     def line(self) -> str:
         """'phase: done/total day (pct), rate day/s, ETA m:ss, key=value ...'."""
         dt = max(time.monotonic() - self._t0, 1e-9)

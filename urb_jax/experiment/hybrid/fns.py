@@ -46,16 +46,30 @@ class TrainerFns(NamedTuple):
 
 
 def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, static: Static, P: int,
-              n_iters_round: int, n_real: int | None = None) -> TrainerFns:
+              n_iters_round: int, n_real: int | None = None,
+              on_iteration: Callable[[Any], None] | None = None) -> TrainerFns:
     """The pieces for `learner` trained on the surrogate env `env`, P real days per round, played
     by `n_real` copies of the real humans (P: frozen humans, days side by side; 1: adapting humans,
-    one population living the days in order)."""
+    one population living the days in order). `on_iteration(i)`: a host call as each surrogate
+    iteration i of a round starts (the trainer's clock; it reads no array of the training)."""
     real_env = RoutingEnv(env.scenario, env.is_cav, human_init=env.human_init, **env_kwargs)  # SUMO days
     levels = dependency_levels(env)
     n_real = P if n_real is None else n_real
 
+    def _iters(key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The round's (iteration index [n], key [n, 2]) scan inputs."""
+        return jnp.arange(n_iters_round), jax.random.split(key, n_iters_round)
+
+    def _tick(i: jax.Array) -> None:
+        if on_iteration is not None:
+            jax.debug.callback(on_iteration, i)
+
     def _sur_round(runner: Runner, key: jax.Array) -> tuple[Runner, Metrics]:
-        return jax.lax.scan(learner.iteration, runner, jax.random.split(key, n_iters_round))
+        def body(runner: Runner, xs: tuple[jax.Array, jax.Array]) -> tuple[Runner, Metrics]:
+            _tick(xs[0])
+            return learner.iteration(runner, xs[1])
+
+        return jax.lax.scan(body, runner, _iters(key))
 
     def _sur_round_adapt(runner: Runner, pop: EnvState, key: jax.Array) -> tuple[Runner, EnvState, Metrics]:
         """Adapting humans: every iteration the learner's B envs start from the population's day,
@@ -64,9 +78,11 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
         n_envs = jax.tree_util.tree_leaves(runner.env_states)[0].shape[0]
         n_days = learner.days_per_iter * n_envs
 
-        def body(carry: tuple[Runner, EnvState], k: jax.Array) -> tuple[tuple[Runner, EnvState], Metrics]:
+        def body(carry: tuple[Runner, EnvState], xs: tuple[jax.Array, jax.Array]
+                 ) -> tuple[tuple[Runner, EnvState], Metrics]:
             runner, pop = carry
-            k_it, k_pop = jax.random.split(k)
+            _tick(xs[0])
+            k_it, k_pop = jax.random.split(xs[1])
             envs = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n_envs, *x.shape)), pop)
             runner, metrics = learner.iteration(runner._replace(env_states=envs), k_it)
             pops, days = collect(env, learner.policy(runner, True), k_pop,
@@ -75,7 +91,7 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
             return (runner, pop), {**metrics, "population_time_human": days.time_human.mean(),
                                    "population_time_cav": days.time_cav.mean()}
 
-        (runner, pop), metrics = jax.lax.scan(body, (runner, pop), jax.random.split(key, n_iters_round))
+        (runner, pop), metrics = jax.lax.scan(body, (runner, pop), _iters(key))
         return runner, pop, metrics
 
     def _act(runner: Runner, keys: jax.Array, states: EnvState, explore: bool

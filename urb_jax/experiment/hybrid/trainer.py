@@ -21,9 +21,11 @@ import numpy as np
 
 from urb_jax.algorithms.learner import Day
 from urb_jax.city.scenario import Scenario
+from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import RoundMeta, restore_round, save_round
 from urb_jax.experiment.human_phase import HumanPhase
+from urb_jax.experiment.hybrid.clock import IterationClock
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns
 from urb_jax.experiment.hybrid.plan import (
     MODES,
@@ -87,6 +89,7 @@ class Group:
     alg_config: AlgoConfig
     fns: TrainerFns
     keys: GroupKeys
+    clock: IterationClock  # times the surrogate iterations from inside the jitted round
 
     @property
     def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
@@ -142,12 +145,21 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     plan = plan_rounds(cfg, mode, probe.days_per_iter)
     learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
-    fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
+    clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg))
+    fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real, clock)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
     return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,
                  task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
                  np.flatnonzero(is_cav), static, p0,
-                 plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]))
+                 plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock)
+
+
+def _slow_hint(alg: str) -> str:
+    """What to do about a surrogate training that is slow on this machine."""
+    if (configs_dir() / "algo" / alg / "hybrid.json").is_file():
+        return (f"URB's TorchRL configs are update-bound on a CPU (their update count grows with the "
+                f"data): `--alg-conf hybrid` trains {alg} sized for the hybrid budget (docs/algorithms.md)")
+    return "Fewer --train-days, a smaller config or a GPU would shorten it"
 
 
 class HybridTrainer:
@@ -222,6 +234,7 @@ class HybridTrainer:
         rk = g.fns.round_keys(g.keys.rounds, r)  # [S, 4, 2]
         k_sur, k_act, k_step, k_upd = rk[:, 0], rk[:, 1], rk[:, 2], rk[:, 3]
         rows: list[Row] = [{"round": r + 1} for _ in g.seeds]
+        g.clock.start_round(r)
         if g.plan.surrogate_days:
             self.surrogate_leg(k_sur, rows)
         if g.plan.sumo_days:
@@ -393,6 +406,7 @@ def train_group(
                for f in folders]
     plan, per_round = g.plan, g.plan.surrogate_days + g.plan.sumo_days
     bar = Progress(g.S * (g.H + plan.n_rounds * per_round + g.E), progress)
+    g.clock.note = bar.note
     trainer = HybridTrainer(g, executor, writers, bar)
     start = trainer.start(human) if human is not None else trainer.resume()
     bar.update(g.S * (g.H + start * per_round), trainer.tag + ("resume" if human is None else "human"))
