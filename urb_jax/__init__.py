@@ -18,9 +18,10 @@ every layer of the import contract.
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Any
 
 from urb_jax.core.version import __version__
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (mypy and pyright know the name)
 
 # name -> the module that defines it (one implementation each; this file only points at them)
 _EXPORTS = {
@@ -50,6 +51,8 @@ __all__ = [  # the same names as _EXPORTS (tests/test_api.py), spelled out for l
 ]
 
 if TYPE_CHECKING:  # what type checkers and editors see; at run time __getattr__ loads these
+    from typing import Any
+
     from urb_jax.city.routes import RouteParams
     from urb_jax.city.scenario import Scenario, load_scenario
     from urb_jax.experiment.run import RunResult, resume_train, run_baseline, run_train
