@@ -1,5 +1,6 @@
 """Authoritative SUMO days through libsumo: `run_day` for one day, a `DayExecutor` for many.
 
+`run_days` runs a batch in this process (no workers: safe in a script without a main guard).
 Executors: `InProcessExecutor` (this process), `SumoPool` (worker processes), `RayExecutor` (Ray
 actors; Ray is imported only when one is built), `MemoExecutor` (around any of them: each
 distinct day once, optionally kept on disk).
@@ -11,11 +12,11 @@ from urb_jax.sumo_bridge.memo import MemoExecutor
 from urb_jax.sumo_bridge.pool import SumoPool
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 from urb_jax.sumo_bridge.scheduler import SumoDayError
-from urb_jax.sumo_bridge.sim import InProcessExecutor, Simulator, run_day
+from urb_jax.sumo_bridge.sim import InProcessExecutor, Simulator, run_day, run_days
 from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayExecutor, DayResult
 
 __all__ = [
     "ARRIVED", "REMOVED_CAP", "REMOVED_STUCK", "DayExecutor", "DayResult", "InProcessExecutor",
     "MemoExecutor", "RayExecutor", "Simulator", "SumoConfig", "SumoDayError", "SumoPool", "day_key",
-    "run_day", "scenario_key",
+    "run_day", "run_days", "scenario_key",
 ]

@@ -16,6 +16,7 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -272,6 +273,27 @@ def run_day(scenario: Scenario, choices: np.ndarray, *, seed: int, is_cav: np.nd
     return get_simulator(config, log_file).run_day(scenario, choices, seed=seed, is_cav=is_cav)
 
 
+def run_days(scenario: Scenario, choices: np.ndarray, seeds: int | Sequence[int] | np.ndarray | None = None,
+             *, is_cav: np.ndarray | None = None, config: SumoConfig | None = None,
+             log_file: str | os.PathLike | None = None) -> list[DayResult]:
+    """SUMO days one after another in this process: `choices[B, N]`, seeds one or one per day
+    (default the Scenario's env seed, as URB runs every day), `is_cav` [N] or [B, N]. No worker
+    process is started, so a script needs no `if __name__ == "__main__"` guard (`SumoPool` does:
+    its workers are spawned, and spawn re-runs the calling script)."""
+    seeds = scenario.env_seed if seeds is None else seeds
+    return _days_on(get_simulator(config, log_file), scenario, choices, seeds, is_cav)
+
+
+def _days_on(sim: Simulator, scenario: Scenario, choices: np.ndarray, seeds: int | Sequence[int] | np.ndarray,
+             is_cav: np.ndarray | None) -> list[DayResult]:
+    """A batch of days on one Simulator, each pre-loading the next day's seed."""
+    batch = as_batch(choices, seeds, is_cav)
+    seeds = batch.seeds
+    nxt = [*seeds[1:], seeds[-1]] if seeds else []
+    return [sim.run_day(scenario, c, seed=s, is_cav=m, next_seed=n)
+            for c, s, m, n in zip(batch.choices, seeds, batch.cavs, nxt, strict=True)]
+
+
 class InProcessExecutor:
     """The `DayExecutor` without workers: days one after another on this process's own Simulator."""
 
@@ -284,11 +306,7 @@ class InProcessExecutor:
 
     def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
                  is_cav: np.ndarray | None = None) -> list[DayResult]:
-        batch = as_batch(choices, seeds, is_cav)
-        seeds = batch.seeds
-        nxt = [*seeds[1:], seeds[-1]] if seeds else []  # each day pre-loads the next day's seed
-        return [self.sim.run_day(scenario, c, seed=s, is_cav=m, next_seed=n)
-                for c, s, m, n in zip(batch.choices, seeds, batch.cavs, nxt, strict=True)]
+        return _days_on(self.sim, scenario, choices, seeds, is_cav)
 
     def close(self) -> None:
         self.sim.close()

@@ -13,10 +13,15 @@ provins, ingolstadt_custom) every connection admits passenger cars, so the graph
 from __future__ import annotations
 
 import bisect
-import multiprocessing as mp
+import os
+import pickle
+import signal
+import subprocess
+import sys
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import networkx as nx
 import numpy as np
@@ -231,6 +236,8 @@ def graph_adjacency(graph: nx.DiGraph) -> tuple[dict[str, list[str]], dict[str, 
 
 _WORKER_GRAPH: nx.DiGraph | None = None
 _WORKER_ADJ: tuple[dict[str, list[str]], dict[str, list[str]]] | None = None
+MIN_PARALLEL = 32  # fewer OD pairs are sampled in this process: a worker's start costs more
+Task = tuple[str, str, RouteParams, int]
 
 
 def _init_worker(graph: nx.DiGraph) -> None:
@@ -239,7 +246,7 @@ def _init_worker(graph: nx.DiGraph) -> None:
     _WORKER_ADJ = graph_adjacency(graph)
 
 
-def _worker(task: tuple[str, str, RouteParams, int]) -> ODRoutes | str:
+def _worker(task: Task) -> ODRoutes | str:
     origin, destination, params, seed = task
     assert _WORKER_GRAPH is not None
     try:
@@ -255,16 +262,62 @@ def generate_routes(
     seed: int,
     workers: int = 1,
 ) -> tuple[list[ODRoutes | str], ...]:
-    """Routes for every OD; failures come back as messages so the caller can name the agents."""
+    """Routes for every OD; failures come back as messages so the caller can name the agents.
+
+    Each OD's draws come from its own `default_rng(seed)`, so any split over workers gives the
+    same routes as one process."""
     tasks = [(o, d, params, seed) for o, d in od_edges]
-    if workers <= 1 or len(tasks) < 32:
+    if workers <= 1 or len(tasks) < MIN_PARALLEL:
         _init_worker(graph)
         return (list(map(_worker, tasks)),)
-    # Not fork: JAX may already run threads in this process, and forking those can deadlock.
-    methods = mp.get_all_start_methods()
-    ctx = mp.get_context("forkserver" if "forkserver" in methods else "spawn")
-    with ctx.Pool(workers, initializer=_init_worker, initargs=(graph,)) as pool:
-        return (pool.map(_worker, tasks, chunksize=8),)
+    return (_in_worker_interpreters(graph, tasks, workers),)
+
+
+def _in_worker_interpreters(graph: nx.DiGraph, tasks: list[Task], workers: int) -> list[ODRoutes | str]:
+    """`tasks` split over `workers` fresh Python interpreters (`_serve`), fed and answered by pipe.
+
+    Not a multiprocessing pool: its spawn/forkserver children re-run the caller's script, so a
+    script without an `if __name__ == "__main__"` guard crashed (issue #18); and fork could
+    deadlock on threads JAX may already run. A fresh interpreter imports only this module."""
+    shares = [tasks[i::workers] for i in range(workers)]  # interleaved: slow ODs spread out
+    root = str(Path(__file__).resolve().parents[2])  # the folder holding the urb_jax package
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
+    cmd = [sys.executable, "-P", "-c", "from urb_jax.city.routes import _serve; _serve()"]
+    procs = [subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env) for _ in shares]
+    try:
+        for proc, share in zip(procs, shares, strict=True):
+            assert proc.stdin is not None
+            pickle.dump((graph, share), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            proc.stdin.close()
+        answers = [_answer(proc) for proc in procs]
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait()
+    out: list[ODRoutes | str] = [""] * len(tasks)
+    for i, answer in enumerate(answers):
+        out[i::workers] = answer
+    return out
+
+
+def _answer(proc: subprocess.Popen) -> list[ODRoutes | str]:
+    assert proc.stdout is not None
+    try:
+        return pickle.load(proc.stdout)
+    except EOFError:
+        raise RuntimeError(f"a route-sampling worker stopped (exit code {proc.wait()}); its error is "
+                           "printed above") from None
+
+
+def _serve() -> None:
+    """A worker interpreter: (graph, tasks) from stdin, their routes to stdout (one pickle each).
+    Ctrl-C is the parent's to handle: it stops the workers."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    graph, tasks = pickle.load(sys.stdin.buffer)
+    _init_worker(graph)
+    pickle.dump(list(map(_worker, tasks)), sys.stdout.buffer, protocol=pickle.HIGHEST_PROTOCOL)
+    sys.stdout.buffer.flush()
 
 
 def free_flow_times(

@@ -21,7 +21,6 @@ from pathlib import Path
 import networkx as nx
 import numpy as np
 
-from urb_jax import __version__
 from urb_jax.city.network import DEFAULT_NETWORK, Demand, NetworkFiles, find_network, read_demand
 from urb_jax.city.netxml import NetData, read_net
 from urb_jax.city.routes import (
@@ -35,6 +34,7 @@ from urb_jax.city.routes import (
 from urb_jax.core.atomic import write_npz
 from urb_jax.core.errors import NetworkError, RouteError
 from urb_jax.core.paths import cache_dir
+from urb_jax.core.version import __version__
 
 log = logging.getLogger(__name__)
 CACHE_FORMAT = 2  # 2: the drop-unroutable choice in the key, `dropped_unroutable` stored

@@ -7,11 +7,11 @@ import importlib
 import logging
 import sys
 
-from urb_jax import __version__
 from urb_jax.commands import COMMANDS
 from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, handle_interrupts, leave_interrupted
+from urb_jax.core.version import __version__
 
 
 def build_parser() -> argparse.ArgumentParser:

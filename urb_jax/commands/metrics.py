@@ -21,16 +21,9 @@ def recompute(folder: str) -> dict[str, float]:
     """Rewrite FOLDER/metrics/{Benchmark,Vector}Metrics.csv (atomically) from records.parquet."""
     from pathlib import Path
 
-    from urb_jax.core.errors import UrbJaxError
-    from urb_jax.reporting.day_export import run_config
-    from urb_jax.reporting.records import write_run_metrics
+    from urb_jax.reporting.records import finished_run_config, write_run_metrics
 
-    cfg = run_config(folder)
-    if cfg.get("status") != "done" or "training_days" not in cfg:
-        fix = ("re-run the baseline" if "baseline_model" in cfg
-               else f"finish it first (`urb-jax train --resume {Path(folder).name}`)")
-        raise UrbJaxError(f"{folder}/exp_config.json: status {cfg.get('status')!r}, not a finished run. "
-                          f"Fix: {fix}.")
+    cfg = finished_run_config(folder)
     return write_run_metrics(Path(folder), int(cfg["human_days"]), int(cfg["training_days"]))[0]
 
 

@@ -22,7 +22,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from urb_jax import __version__
 from urb_jax.algorithms.baselines import CavPolicy, make_baseline
 from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.demand import scale_demand
@@ -33,6 +32,7 @@ from urb_jax.core.configio import to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop
 from urb_jax.core.progress import Progress
+from urb_jax.core.version import __version__
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import (
     JOURNAL_KEY,

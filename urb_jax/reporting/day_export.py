@@ -8,7 +8,6 @@ arrivals exactly whenever no vehicle was removed as stuck (tests/test_sumo_bridg
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import subprocess
@@ -24,7 +23,7 @@ from urb_jax.city.routes import RouteParams
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.atomic import write_text
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.reporting.records import read_records
+from urb_jax.reporting.records import read_records, run_config
 from urb_jax.sumo_bridge.tripinfo import insertion_order
 
 VEHICLE_ATTRS = ('departLane="first" departPos="base" departSpeed="0" '
@@ -46,14 +45,6 @@ def day_routes_xml(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray) -> st
         )
     lines.append("</routes>\n")
     return "\n".join(lines)
-
-
-def run_config(folder: str | os.PathLike) -> dict[str, Any]:
-    path = Path(folder) / "exp_config.json"
-    if not path.is_file():
-        raise UrbJaxError(f"{path}: not found. Fix: pass a run folder (results/<exp_id>) of a "
-                          "`urb-jax train` or `urb-jax baseline` run.")
-    return json.loads(path.read_text())
 
 
 def scenario_of_run(folder: str | os.PathLike, networks_dir: str | None = None) -> Scenario:

@@ -8,11 +8,13 @@ A crashed run leaves readable complete parts; `read_records` reads either form.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -149,6 +151,33 @@ def read_records(folder: str | os.PathLike, columns: Sequence[str] | None = None
     if not parts:
         raise UrbJaxError(f"{folder}: no {RECORDS_FILE} and no complete record parts.")
     return pa.concat_tables([pq.read_table(p, columns=cols) for p in parts]).to_pandas()
+
+
+def run_config(folder: str | os.PathLike) -> dict[str, Any]:
+    """A run's exp_config.json."""
+    path = Path(folder) / "exp_config.json"
+    if not path.is_file():
+        raise UrbJaxError(f"{path}: not found. Fix: pass a run folder (results/<exp_id>) of a "
+                          "`urb-jax train` or `urb-jax baseline` run.")
+    return json.loads(path.read_text())
+
+
+def finished_run_config(folder: str | os.PathLike) -> dict[str, Any]:
+    """The exp_config.json of a finished run (the only kind whose records make whole metrics)."""
+    cfg = run_config(folder)
+    if cfg.get("status") != "done" or "training_days" not in cfg:
+        fix = ("re-run the baseline" if "baseline_model" in cfg
+               else f"finish it first (`urb-jax train --resume {Path(folder).name}`)")
+        raise UrbJaxError(f"{folder}/exp_config.json: status {cfg.get('status')!r}, not a finished run. "
+                          f"Fix: {fix}.")
+    return cfg
+
+
+def run_metrics(folder: str | os.PathLike) -> dict[str, float]:
+    """A finished run's BenchmarkMetrics row (URB's column names), computed from its records and
+    the phase lengths in its exp_config.json; writes nothing (`write_run_metrics` writes the files)."""
+    cfg = finished_run_config(folder)
+    return compute_metrics(read_records(folder), int(cfg["human_days"]), int(cfg["training_days"]))
 
 
 def write_run_metrics(folder: Path, human_days: int,
