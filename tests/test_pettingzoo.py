@@ -188,6 +188,7 @@ def test_incremental_observations_equal_full_computation(kind):
                 actions[i] = a
             full = np.asarray(observe(spec, jnp.asarray(actions)))
             np.testing.assert_array_equal(inc.observe(np.arange(n)), full)
+            np.testing.assert_array_equal(inc.observe_one(int(who[0])), full[who[0]])
     with pytest.raises(ValueError, match="not a route index"):
         inc.set(0, k)
 

@@ -40,6 +40,13 @@ from urb_jax.game.rollout import cav_levels
 from urb_jax.sumo_bridge import run_day
 
 
+@jax.jit
+def _day_keys(key: jax.Array, day: int) -> tuple[jax.Array, jax.Array]:
+    """(humans' draw key, humans' day-end key) of a day: one dispatch instead of three."""
+    day_key = jax.random.fold_in(key, day)
+    return jax.random.fold_in(day_key, 1), jax.random.fold_in(day_key, 2)
+
+
 class _SumoDays:
     """What both envs share: the humans, the CAVs, and one day's start, actions, observations and
     end. Subclasses call `_setup` from their constructor."""
@@ -96,9 +103,8 @@ class _SumoDays:
         if seed is not None:
             self._key = jax.random.PRNGKey(seed)
         self.day += 1
-        self._day_key = jax.random.fold_in(self._key, self.day)
-        self.human_choices = np.asarray(act_jit(jax.random.fold_in(self._day_key, 1), self.humans, self.hp,
-                                                self.fft))
+        k_act, self._k_end = _day_keys(self._key, self.day)
+        self.human_choices = np.asarray(act_jit(k_act, self.humans, self.hp, self.fft))
         self._observations.reset(self.human_choices)
 
     def _rows(self, agents: list[str]) -> np.ndarray:
@@ -118,10 +124,11 @@ class _SumoDays:
         res = self.day_fn(self.scenario, joint.copy(), seed=self.env_seed, is_cav=self.is_cav)
         self.last_result = res
         times = np.asarray(res.travel_time, dtype=np.float32)
+        # eager, as before: jitted, XLA may sum the group means in another order (last-bit changes)
         rewards = np.asarray(cav_rewards(jnp.asarray(times), jnp.asarray(self.is_cav), self.coefficients))
         rewards_c, times_c = rewards[self.cav_index].tolist(), times[self.cav_index].tolist()
         # As the SUMO protocol: humans learn only when the task lets them adapt.
-        self.humans = end_day_jit(jax.random.fold_in(self._day_key, 2), self.humans, jnp.asarray(joint),
+        self.humans = end_day_jit(self._k_end, self.humans, jnp.asarray(joint),
                                   jnp.asarray(times), self.hp, self.is_cav,
                                   learn_today=self.task.should_humans_adapt)
         return (dict(zip(self.possible_agents, rewards_c, strict=True)),
@@ -154,26 +161,43 @@ class UrbAECEnv(_SumoDays, AECEnv):
         self.infos = {a: {} for a in self.agents}
         self._agent_selector = AgentSelector(self.agents)
         self.agent_selection = self._agent_selector.reset() if self.agents else None
+        self._rewards_shown = False
 
     def observe(self, agent: str) -> np.ndarray:
-        return self._observe([agent])[agent]
+        return self._observations.observe_one(int(self.cav_index[self._pos[agent]]))
 
     def step(self, action: int | None) -> None:
         agent = self.agent_selection
         if self.terminations[agent] or self.truncations[agent]:
-            self._was_dead_step(action)
+            self._dead_step(action)
             return
         self._cumulative_rewards[agent] = 0.0
         self._act([agent], [action])
-        if self._agent_selector.is_last():
+        day_over = self._agent_selector.is_last()
+        self.agent_selection = self._agent_selector.next()
+        if day_over:  # rewards stay 0 until the last CAV acted: nothing to clear or accumulate before
             rewards, infos = self._end_day()
             self.rewards.update(rewards)
             self.infos.update(infos)
             self.terminations = dict.fromkeys(self.agents, True)
-        else:
+            self._accumulate_rewards()
+            self._rewards_shown = True
+
+    def _dead_step(self, action: None) -> None:
+        """PettingZoo's `_was_dead_step` for this env's one way to die, in O(1) rather than O(C):
+        every CAV terminates at once and leaves in turn order, so the next to step is the first
+        left; the first dead step clears `rewards` (cumulative rewards stay until each leaves)."""
+        if action is not None:
+            raise ValueError("when an agent is dead, the only valid action is None")
+        agent = self.agent_selection
+        for table in (self.terminations, self.truncations, self.rewards, self._cumulative_rewards,
+                      self.infos):
+            del table[agent]
+        self.agents.remove(agent)  # the first of the list
+        self.agent_selection = self.agents[0] if self.agents else None
+        if self._rewards_shown:
             self._clear_rewards()
-        self.agent_selection = self._agent_selector.next()
-        self._accumulate_rewards()
+            self._rewards_shown = False
 
     def render(self) -> None:
         return None

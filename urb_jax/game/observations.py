@@ -119,14 +119,14 @@ class IncrementalObservations:
         self._group_end = np.minimum.accumulate(np.where(last_of_group, pos + 1, n)[::-1])[::-1]
         self._tie_end = np.minimum.accumulate(np.where(last_of_tie, pos + 1, n)[::-1])[::-1]
         self._start = np.asarray(spec.depart, dtype=np.float32)[:, None]  # [N, 1]
+        self._full = jax.jit(lambda actions: earlier_counts(idx, actions, spec.k)[idx.order])  # [N, K]
         self.actions = np.zeros(n, dtype=np.int64)
         self._counts = np.zeros((n, spec.k), dtype=np.int64)  # [N, K] by sorted position
 
     def reset(self, actions: np.ndarray) -> None:
         """Start from `actions` [N] (one full computation)."""
         self.actions = np.asarray(actions, dtype=np.int64).copy()
-        counts = np.asarray(earlier_counts(self.spec.index, jnp.asarray(self.actions), self.spec.k))
-        self._counts = np.rint(counts[self.spec.index.order]).astype(np.int64)
+        self._counts = np.rint(np.asarray(self._full(self.actions))).astype(np.int64)
 
     def set(self, agents: np.ndarray | int, actions: np.ndarray | int) -> None:
         """Agents `agents` (rows of the agent axis) now take `actions`."""
@@ -141,6 +141,17 @@ class IncrementalObservations:
             self._counts[rows, old] -= 1
             self._counts[rows, a] += 1
             self.actions[i] = a
+
+    def observe_one(self, agent: int) -> np.ndarray:
+        """[obs_size] float32 observation of one agent (row of the agent axis): `observe`'s row
+        without its array indexing, for the AEC env's one read per step."""
+        counts = self._counts[self.spec.index.inverse[agent]]
+        if self.spec.kind == "previous_agents":
+            return counts.astype(np.float32)
+        out = np.empty(self.spec.k + 1, dtype=np.float32)
+        out[0] = self._start[agent, 0]
+        out[1:] = counts
+        return out
 
     def observe(self, agents: np.ndarray) -> np.ndarray:
         """[len(agents), obs_size] float32 observations of `agents` (rows of the agent axis)."""
