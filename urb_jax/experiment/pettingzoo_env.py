@@ -1,23 +1,32 @@
-"""A PettingZoo AEC environment over authoritative (SUMO) days, as RouteRL offers.
+"""PettingZoo environments over authoritative (SUMO) days, as RouteRL offers: AEC and Parallel.
 
-One episode = one day. Agents are the CAVs (names `str(agent_id)`), acting once per day in
-departure order; humans are not agents — their choices for the day are drawn at `reset` from
-their learned model. A CAV observes its own start time and, per route, how many agents of its
-OD with a strictly earlier departure took that route today (humans' today choices and earlier
-CAVs' actions). After the last CAV acts, the day is simulated by `day_fn` (SUMO by default),
-every CAV gets its behaviour reward (minutes), all CAVs terminate, and humans learn if the task
-lets them adapt. The human learning phase runs in the constructor unless `humans` is given.
+One episode = one day. Agents are the CAVs (names `str(agent_id)`), acting once per day; humans
+are not agents — their choices for the day are drawn at `reset` from their learned model. A CAV
+observes its own start time and, per route, how many agents of its observation group (its OD)
+with a strictly earlier departure took that route today (humans' today choices and earlier CAVs'
+actions). After the last CAV acts, the day is simulated by `day_fn` (SUMO by default), every CAV
+gets its behaviour reward (minutes), all CAVs terminate, and humans learn if the task lets them
+adapt. The human learning phase runs in the constructor unless `humans` is given.
+
+`UrbAECEnv` steps one CAV at a time in departure order (RouteRL's order). `UrbParallelEnv` steps
+one dependency level at a time (`urb_jax.game.rollout.cav_levels`): the CAVs of a level observe
+only lower levels' actions, so acting level by level gives every CAV exactly its AEC observation,
+and the same policy gives the same day in both envs (docs/pettingzoo.md).
+
+Observations are kept current incrementally (`IncrementalObservations`): a CAV's action updates
+its group's later rows, O(N) at most, instead of recomputing all N observations after each step.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
-from pettingzoo import AECEnv
+from pettingzoo import AECEnv, ParallelEnv
 from pettingzoo.utils import AgentSelector
 
 from urb_jax.city.scenario import Scenario
@@ -25,19 +34,26 @@ from urb_jax.experiment.protocol import DayFn, train_humans
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.humans import HumanState, act_jit, end_day_jit
 from urb_jax.game.mutation import draw_cavs
-from urb_jax.game.observations import make_observation_spec, observe
+from urb_jax.game.observations import IncrementalObservations, make_observation_spec
 from urb_jax.game.rewards import cav_rewards
+from urb_jax.game.rollout import cav_levels
 from urb_jax.sumo_bridge import run_day
 
 
-class UrbAECEnv(AECEnv):
-    metadata: ClassVar[dict] = {"name": "urb_jax_v0", "render_modes": [], "is_parallelizable": False}
+@jax.jit
+def _day_keys(key: jax.Array, day: int) -> tuple[jax.Array, jax.Array]:
+    """(humans' draw key, humans' day-end key) of a day: one dispatch instead of three."""
+    day_key = jax.random.fold_in(key, day)
+    return jax.random.fold_in(day_key, 1), jax.random.fold_in(day_key, 2)
 
-    def __init__(self, scenario: Scenario, task: TaskConfig | None = None,
-                 env_config: EnvConfig | None = None, *, env_seed: int = 42, day_fn: DayFn | None = None,
-                 humans: HumanState | None = None,
-                 is_cav: np.ndarray | None = None) -> None:
-        super().__init__()
+
+class _SumoDays:
+    """What both envs share: the humans, the CAVs, and one day's start, actions, observations and
+    end. Subclasses call `_setup` from their constructor."""
+
+    def _setup(self, scenario: Scenario, task: TaskConfig | None, env_config: EnvConfig | None,
+               env_seed: int, day_fn: DayFn | None, humans: HumanState | None,
+               is_cav: np.ndarray | None) -> None:
         self.scenario = scenario
         self.task = task or TaskConfig()
         self.env_config = env_config or EnvConfig()
@@ -61,6 +77,7 @@ class UrbAECEnv(AECEnv):
         self._pos = dict(zip(self.possible_agents, range(len(self.possible_agents)), strict=True))
         self.spec = make_observation_spec(self.env_config.observations, scenario.agent_od,
                                           scenario.agent_depart, scenario.k)
+        self._observations = IncrementalObservations(self.spec)
         high = np.finfo(np.float32).max
         self._obs_space = gymnasium.spaces.Box(0.0, high, shape=(self.spec.size,), dtype=np.float32)
         self._act_space = gymnasium.spaces.Discrete(scenario.k)
@@ -74,14 +91,68 @@ class UrbAECEnv(AECEnv):
     def action_space(self, agent: str) -> gymnasium.spaces.Discrete:
         return self._act_space
 
-    def reset(self, seed: int | None = None, options: dict | None = None) -> None:
+    @property
+    def joint(self) -> np.ndarray:
+        """[N] today's choices so far (read-only): humans' draws; each CAV's action once it acted,
+        the humans' model's draw for it before."""
+        view = self._observations.actions.view()
+        view.flags.writeable = False
+        return view
+
+    def _start_day(self, seed: int | None) -> None:
         if seed is not None:
             self._key = jax.random.PRNGKey(seed)
         self.day += 1
-        self._day_key = jax.random.fold_in(self._key, self.day)
-        self.human_choices = np.asarray(act_jit(jax.random.fold_in(self._day_key, 1), self.humans, self.hp,
-                                                self.fft))
-        self.joint = self.human_choices.copy()
+        k_act, self._k_end = _day_keys(self._key, self.day)
+        self.human_choices = np.asarray(act_jit(k_act, self.humans, self.hp, self.fft))
+        self._observations.reset(self.human_choices)
+
+    def _rows(self, agents: list[str]) -> np.ndarray:
+        """[len(agents)] rows of the agent axis."""
+        return self.cav_index[[self._pos[a] for a in agents]]
+
+    def _act(self, agents: list[str], actions: list[Any]) -> None:
+        self._observations.set(self._rows(agents), np.asarray([int(a) for a in actions], dtype=np.int64))
+
+    def _observe(self, agents: list[str]) -> dict[str, np.ndarray]:
+        obs = self._observations.observe(self._rows(agents))  # [len(agents), D]
+        return dict(zip(agents, obs, strict=True))
+
+    def _end_day(self) -> tuple[dict[str, float], dict[str, dict]]:
+        """Simulate today's joint choices; (reward, info) per CAV; humans end the day."""
+        joint = self._observations.actions.copy()
+        res = self.day_fn(self.scenario, joint.copy(), seed=self.env_seed, is_cav=self.is_cav)
+        self.last_result = res
+        times = np.asarray(res.travel_time, dtype=np.float32)
+        # eager, as before: jitted, XLA may sum the group means in another order (last-bit changes)
+        rewards = np.asarray(cav_rewards(jnp.asarray(times), jnp.asarray(self.is_cav), self.coefficients))
+        rewards_c, times_c = rewards[self.cav_index].tolist(), times[self.cav_index].tolist()
+        # As the SUMO protocol: humans learn only when the task lets them adapt.
+        self.humans = end_day_jit(self._k_end, self.humans, jnp.asarray(joint),
+                                  jnp.asarray(times), self.hp, self.is_cav,
+                                  learn_today=self.task.should_humans_adapt)
+        return (dict(zip(self.possible_agents, rewards_c, strict=True)),
+                {a: {"travel_time": t, "day": self.day} for a, t in zip(self.possible_agents, times_c,
+                                                                         strict=True)})
+
+
+class UrbAECEnv(_SumoDays, AECEnv):
+    """CAVs act one at a time in departure order; `observe(agent)` is O(K), `step` O(N) at most.
+
+    Not parallelizable through PettingZoo's `aec_to_parallel` (every CAV would act on its
+    day-start observation); use `UrbParallelEnv`."""
+
+    metadata: ClassVar[dict] = {"name": "urb_jax_v0", "render_modes": [], "is_parallelizable": False}
+
+    def __init__(self, scenario: Scenario, task: TaskConfig | None = None,
+                 env_config: EnvConfig | None = None, *, env_seed: int = 42, day_fn: DayFn | None = None,
+                 humans: HumanState | None = None,
+                 is_cav: np.ndarray | None = None) -> None:
+        super().__init__()
+        self._setup(scenario, task, env_config, env_seed, day_fn, humans, is_cav)
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> None:
+        self._start_day(seed)
         self.agents = list(self.possible_agents)
         self.rewards = dict.fromkeys(self.agents, 0.0)
         self._cumulative_rewards = dict.fromkeys(self.agents, 0.0)
@@ -90,42 +161,105 @@ class UrbAECEnv(AECEnv):
         self.infos = {a: {} for a in self.agents}
         self._agent_selector = AgentSelector(self.agents)
         self.agent_selection = self._agent_selector.reset() if self.agents else None
-        self._obs_cache: np.ndarray | None = None
+        self._rewards_shown = False
 
     def observe(self, agent: str) -> np.ndarray:
-        if self._obs_cache is None:
-            self._obs_cache = np.asarray(observe(self.spec, jnp.asarray(self.joint)), dtype=np.float32)
-        return self._obs_cache[self.cav_index[self._pos[agent]]].copy()
+        return self._observations.observe_one(int(self.cav_index[self._pos[agent]]))
 
     def step(self, action: int | None) -> None:
         agent = self.agent_selection
         if self.terminations[agent] or self.truncations[agent]:
-            self._was_dead_step(action)
+            self._dead_step(action)
             return
         self._cumulative_rewards[agent] = 0.0
-        self.joint[self.cav_index[self._pos[agent]]] = int(action)
-        self._obs_cache = None
-        if self._agent_selector.is_last():
-            self._end_day()
-        else:
-            self._clear_rewards()
+        self._act([agent], [action])
+        day_over = self._agent_selector.is_last()
         self.agent_selection = self._agent_selector.next()
-        self._accumulate_rewards()
+        if day_over:  # rewards stay 0 until the last CAV acted: nothing to clear or accumulate before
+            rewards, infos = self._end_day()
+            self.rewards.update(rewards)
+            self.infos.update(infos)
+            self.terminations = dict.fromkeys(self.agents, True)
+            self._accumulate_rewards()
+            self._rewards_shown = True
 
-    def _end_day(self) -> None:
-        res = self.day_fn(self.scenario, self.joint.copy(), seed=self.env_seed, is_cav=self.is_cav)
-        self.last_result = res
-        times = np.asarray(res.travel_time, dtype=np.float32)
-        rewards = np.asarray(cav_rewards(jnp.asarray(times), jnp.asarray(self.is_cav), self.coefficients))
-        for a in self.agents:
-            i = self.cav_index[self._pos[a]]
-            self.rewards[a] = float(rewards[i])
-            self.terminations[a] = True
-            self.infos[a] = {"travel_time": float(times[i]), "day": self.day}
-        # As the SUMO protocol: humans learn only when the task lets them adapt.
-        self.humans = end_day_jit(jax.random.fold_in(self._day_key, 2), self.humans, jnp.asarray(self.joint),
-                                  jnp.asarray(times), self.hp, self.is_cav,
-                                  learn_today=self.task.should_humans_adapt)
+    def _dead_step(self, action: None) -> None:
+        """PettingZoo's `_was_dead_step` for this env's one way to die, in O(1) rather than O(C):
+        every CAV terminates at once and leaves in turn order, so the next to step is the first
+        left; the first dead step clears `rewards` (cumulative rewards stay until each leaves)."""
+        if action is not None:
+            raise ValueError("when an agent is dead, the only valid action is None")
+        agent = self.agent_selection
+        for table in (self.terminations, self.truncations, self.rewards, self._cumulative_rewards,
+                      self.infos):
+            del table[agent]
+        self.agents.remove(agent)  # the first of the list
+        self.agent_selection = self.agents[0] if self.agents else None
+        if self._rewards_shown:
+            self._clear_rewards()
+            self._rewards_shown = False
+
+    def render(self) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+
+class UrbParallelEnv(_SumoDays, ParallelEnv):
+    """CAVs act one dependency level per step; the day has `num_levels` steps.
+
+    Every CAV is an agent from `reset` until the day ends (its reward comes with the last step).
+    `infos[agent]["acting"]` says who acts at the next step: those CAVs' observations are exactly
+    their AEC observations (every earlier-departing CAV of their group has acted). `step` reads
+    the acting CAVs' actions and ignores the others' (which may be left out)."""
+
+    metadata: ClassVar[dict] = {"name": "urb_jax_parallel_v0", "render_modes": []}
+
+    def __init__(self, scenario: Scenario, task: TaskConfig | None = None,
+                 env_config: EnvConfig | None = None, *, env_seed: int = 42, day_fn: DayFn | None = None,
+                 humans: HumanState | None = None,
+                 is_cav: np.ndarray | None = None) -> None:
+        self._setup(scenario, task, env_config, env_seed, day_fn, humans, is_cav)
+        levels = cav_levels(self.spec, self.cav_index)  # CAV-axis indices per level
+        self.levels: tuple[list[str], ...] = tuple([self.possible_agents[c] for c in lv] for lv in levels)
+        self.num_levels = len(self.levels)
+        self.agents: list[str] = []
+        self.level = 0
+
+    def reset(self, seed: int | None = None,
+              options: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+        self._start_day(seed)
+        self.agents = list(self.possible_agents)
+        self.level = 0
+        return self._observe(self.agents), self._acting_infos()
+
+    def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        if not self.agents:
+            return {}, {}, {}, {}, {}
+        acting = self.levels[self.level]
+        missing = [a for a in acting if a not in actions]
+        if missing:
+            more = " ..." if len(missing) > 5 else ""
+            raise ValueError(f"step(actions) lacks the actions of CAVs acting at level {self.level}: "
+                             f"{missing[:5]}{more}. Fix: give an action to every agent whose "
+                             "infos[agent]['acting'] is True.")
+        self._act(acting, [actions[a] for a in acting])
+        self.level += 1
+        agents = self.agents
+        if self.level < self.num_levels:
+            return (self._observe(agents), dict.fromkeys(agents, 0.0), dict.fromkeys(agents, False),
+                    dict.fromkeys(agents, False), self._acting_infos())
+        obs = self._observe(agents)
+        rewards, infos = self._end_day()
+        for info in infos.values():
+            info["acting"] = False
+        self.agents = []
+        return obs, rewards, dict.fromkeys(agents, True), dict.fromkeys(agents, False), infos
+
+    def _acting_infos(self) -> dict[str, dict]:
+        acting = set(self.levels[self.level]) if self.level < self.num_levels else set()
+        return {a: {"acting": a in acting} for a in self.agents}
 
     def render(self) -> None:
         return None

@@ -93,3 +93,70 @@ def observe(spec: ObservationSpec, actions: jnp.ndarray) -> jnp.ndarray:
     start = jnp.asarray(spec.depart, dtype=jnp.float32)[:, None]
     return jnp.concatenate([start, counts], axis=-1)
 
+
+
+class IncrementalObservations:
+    """Every agent's observation kept current while today's actions change a few at a time (numpy,
+    outside jit: the PettingZoo envs). Equal to `observe(spec, actions)` after every change.
+
+    Counts live per (group, departure)-sorted position. A changed action of the agent at sorted
+    position p moves one count in the rows of its group that depart strictly later (one contiguous
+    slice, at most the group's size), so a change costs O(group) <= O(N) and reading one agent's
+    observation O(K); recomputing everyone after each of C changes cost O(C·N·K)."""
+
+    def __init__(self, spec: ObservationSpec) -> None:
+        self.spec = spec
+        idx = spec.index
+        n = idx.order.shape[0]
+        g = spec.group[idx.order]
+        t = spec.depart[idx.order]
+        last_of_group = np.ones(n, dtype=bool)
+        last_of_group[:-1] = g[1:] != g[:-1]
+        last_of_tie = last_of_group.copy()
+        last_of_tie[:-1] |= t[1:] != t[:-1]
+        pos = np.arange(n)
+        # [N] (sorted positions) one past the last position of my group / of my (group, depart) tie
+        self._group_end = np.minimum.accumulate(np.where(last_of_group, pos + 1, n)[::-1])[::-1]
+        self._tie_end = np.minimum.accumulate(np.where(last_of_tie, pos + 1, n)[::-1])[::-1]
+        self._start = np.asarray(spec.depart, dtype=np.float32)[:, None]  # [N, 1]
+        self._full = jax.jit(lambda actions: earlier_counts(idx, actions, spec.k)[idx.order])  # [N, K]
+        self.actions = np.zeros(n, dtype=np.int64)
+        self._counts = np.zeros((n, spec.k), dtype=np.int64)  # [N, K] by sorted position
+
+    def reset(self, actions: np.ndarray) -> None:
+        """Start from `actions` [N] (one full computation)."""
+        self.actions = np.asarray(actions, dtype=np.int64).copy()
+        self._counts = np.rint(np.asarray(self._full(self.actions))).astype(np.int64)
+
+    def set(self, agents: np.ndarray | int, actions: np.ndarray | int) -> None:
+        """Agents `agents` (rows of the agent axis) now take `actions`."""
+        for i, a in zip(np.atleast_1d(agents).tolist(), np.atleast_1d(actions).tolist(), strict=True):
+            if not 0 <= a < self.spec.k:
+                raise ValueError(f"action {a} of agent row {i} is not a route index in [0, {self.spec.k}).")
+            old = int(self.actions[i])
+            if old == a:
+                continue
+            p = int(self.spec.index.inverse[i])
+            rows = slice(int(self._tie_end[p]), int(self._group_end[p]))  # same group, departing later
+            self._counts[rows, old] -= 1
+            self._counts[rows, a] += 1
+            self.actions[i] = a
+
+    def observe_one(self, agent: int) -> np.ndarray:
+        """[obs_size] float32 observation of one agent (row of the agent axis): `observe`'s row
+        without its array indexing, for the AEC env's one read per step."""
+        counts = self._counts[self.spec.index.inverse[agent]]
+        if self.spec.kind == "previous_agents":
+            return counts.astype(np.float32)
+        out = np.empty(self.spec.k + 1, dtype=np.float32)
+        out[0] = self._start[agent, 0]
+        out[1:] = counts
+        return out
+
+    def observe(self, agents: np.ndarray) -> np.ndarray:
+        """[len(agents), obs_size] float32 observations of `agents` (rows of the agent axis)."""
+        agents = np.asarray(agents)
+        counts = self._counts[self.spec.index.inverse[agents]].astype(np.float32)
+        if self.spec.kind == "previous_agents":
+            return counts
+        return np.concatenate([self._start[agents], counts], axis=-1)

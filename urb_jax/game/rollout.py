@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.game.env import EnvState, RoutingEnv
+from urb_jax.game.observations import ObservationSpec
 
 # policy(key, obs[n, D], idx[n] | None) -> actions[n]: idx names the CAVs acting (rows of the CAV
 # axis); None = all C at once.
@@ -27,9 +28,14 @@ Policy = Callable[..., jnp.ndarray]
 
 def dependency_levels(env: RoutingEnv) -> tuple[np.ndarray, ...]:
     """CAV-axis indices by level: a CAV's observation depends only on lower levels' choices."""
-    g = env.obs_spec.group[env.cav_index]
-    t = env.obs_spec.depart[env.cav_index]
-    level = np.zeros(env.n_cavs, dtype=np.int64)
+    return cav_levels(env.obs_spec, env.cav_index)
+
+
+def cav_levels(spec: ObservationSpec, cav_index: np.ndarray) -> tuple[np.ndarray, ...]:
+    """`dependency_levels` from an observation spec and the CAVs' rows [C] of the agent axis."""
+    g = spec.group[cav_index]
+    t = spec.depart[cav_index]
+    level = np.zeros(len(cav_index), dtype=np.int64)
     for grp in np.unique(g):
         members = np.flatnonzero(g == grp)
         level[members] = np.searchsorted(np.unique(t[members]), t[members])
