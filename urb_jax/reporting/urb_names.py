@@ -74,6 +74,9 @@ def is_urb_jax(cfg: dict[str, Any]) -> bool:
 def names_of(cfg: dict[str, Any]) -> dict[str, Any]:
     """The naming fields of a urb-jax run's exp_config.json, also for runs written before they
     existed (`algorithm` was our id, `script` just "urb-jax train" / "urb-jax baseline")."""
+    if cfg.get("alg"):  # written with them
+        keys = ("algorithm", "alg", "script", "alg_config", "baseline_model")
+        return {k: cfg.get(k) for k in keys if k != "baseline_model" or cfg.get(k)}
     if cfg.get("baseline_model"):
         T = cfg.get("training_days", cfg.get("training_eps", 0))
         return baseline_names(cfg["baseline_model"], int(T))
