@@ -66,7 +66,7 @@ from urb_jax.experiment.run_log import log_run_to, with_run_log
 from urb_jax.experiment.urb_configs import CONFIG_ALIASES_KEY, config_aliases
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.reporting.records import RecordsWriter, remove_parts
-from urb_jax.reporting.urb_names import baseline_names, train_names
+from urb_jax.reporting.urb_names import baseline_names, names_of, train_names
 from urb_jax.sumo_bridge import DayExecutor, DayResult, InProcessExecutor, MemoExecutor, SumoPool, run_day
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
@@ -417,7 +417,8 @@ def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H
     T = summary.sumo_training_days
     metrics, phases = write_outputs(folder, H, T)
     write_rounds(folder, summary.rounds)
-    mark_done(folder, config, **phases, wall_time_s=round(wall, 2), training_days=T, sumo_training_days=T,
+    mark_done(folder, config, **names_of(config), **phases, wall_time_s=round(wall, 2), training_days=T,
+              sumo_training_days=T,
               surrogate_training_days=summary.surrogate_days, rounds=summary.n_rounds,
               alg_config_values=summary.alg_config, aon_same_humans=summary.aon_same_humans)
     drop_journal(folder.parent, config)
