@@ -45,10 +45,31 @@ ALGORITHMS: dict[str, Algorithm] = {
 }
 
 
+# URB's names accepted as --alg where they name one urb-jax algorithm. URB's bandit `iql` / `ippo`
+# are not among them: `iql` / `ippo` have always been urb-jax's TorchRL-style IQL / IPPO (their URB
+# names are iql_torchrl / ippo_torchrl); the bandit ones are `iql_star` / `ippo_star` (docs/algorithms.md).
+URB_ALIASES: dict[str, str] = {alg.urb: name for name, alg in ALGORITHMS.items()
+                               if alg.urb not in ALGORITHMS}
+
+
+def canonical(name: str) -> str:
+    """The urb-jax id of `name` (an id, or URB's name where it is unambiguous: `iql_torchrl` -> iql)."""
+    if name in ALGORITHMS:
+        return name
+    if name in URB_ALIASES:
+        return URB_ALIASES[name]
+    raise ConfigError(f"unknown algorithm '{name}'. Fix: use one of {', '.join(ALGORITHMS)} "
+                      f"(or URB's {', '.join(URB_ALIASES)}).")
+
+
 def algorithm(name: str) -> Algorithm:
-    if name not in ALGORITHMS:
-        raise ConfigError(f"unknown algorithm '{name}'. Fix: use one of {', '.join(ALGORITHMS)}.")
-    return ALGORITHMS[name]
+    return ALGORITHMS[canonical(name)]
+
+
+def urb_algorithm(name: str) -> str:
+    """URB's name of urb-jax algorithm `name`: its folder of config/algo_config and what
+    exp_config.json's `algorithm` says, so URB's tools group and link our runs right."""
+    return algorithm(name).urb
 
 
 def load_algo_config(name: str, config: str = "config1") -> Any:
@@ -58,7 +79,8 @@ def load_algo_config(name: str, config: str = "config1") -> Any:
 
 def load_algo(name: str, config: str = "config1") -> Loaded[Any]:
     """The algorithm's typed config from our file or URB's (URB's key names), with its resolution."""
-    alg = algorithm(name)
+    name = canonical(name)
+    alg = ALGORITHMS[name]
     path = find_config("algo", config, subdir=name)
     check_urb_folder(path, name)
     return load_resolved(alg.config_class, path, ALGO_FAMILIES[alg.urb])

@@ -26,7 +26,7 @@ def rows(results_dir: Path) -> list[dict]:
         m = pd.read_csv(metrics).iloc[0]
         aon = cfg["aon_same_humans"]
         out.append({"group": re.sub(r"_s\d+$", "", cfg_path.parent.name), "network": cfg["network"],
-                    "algorithm": cfg["algorithm"], "alg_config": cfg.get("alg_config"),
+                    "algorithm": cfg.get("alg") or cfg["algorithm"], "alg_config": cfg.get("alg_config"),
                     "behaviour": cfg.get("av_behavior"), "credit": cfg.get("reward_credit", "group"),
                     "t_CAV": m["t_CAV"], "aon": aon["t_CAV"], "t_CAV_duration": m.get("t_CAV_duration"),
                     "aon_duration": aon.get("t_CAV_duration"), "wall_s": cfg.get("wall_time_s")})

@@ -75,6 +75,12 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     assert len(rounds) == 3 and (rounds["surrogate_days"] == 4).all() and (rounds["sumo_days"] == 2).all()
     T = cfg["sumo_training_days"]
     assert T == 6 and cfg["surrogate_training_days"] == 12
+    # URB's phase keys say what the records hold (the task's training_eps, 200, is no train run's)
+    assert (cfg["human_learning_episodes"], cfg["training_eps"], cfg["test_eps"]) == (H, T, E)
+    assert cfg["phase_days"] == {"human": [1, H], "train": [H + 1, H + T], "test": [H + T + 1, H + T + E]}
+    # URB's names: urb-jax's iql is URB's iql_torchrl; the script says which trainer and budget
+    assert (cfg["algorithm"], cfg["alg"]) == ("iql_torchrl", "iql")
+    assert cfg["script"] == "urb-jax train --mode hybrid --hybrid-conf hyb --train-days 18"
     assert sorted(rec["day"].unique()) == list(range(1, H + T + E + 1))
     assert rec["sumo"].all()  # only SUMO days are recorded
     phases = rec.groupby("day")["phase"].first()

@@ -95,7 +95,7 @@ def test_baseline_run_writes_results_folder_and_leaderboard(tmp_path):
     assert table.loc[0, "WR"] == pytest.approx(100 * runs["winrate"].mean())
     assert table.loc[0, "t_CAV_duration_mean"] == pytest.approx(runs["t_CAV_duration"].mean())
     assert main(["leaderboard", str(tmp_path)]) == 0
-    assert "baseline_random" in (tmp_path / "leaderboard.md").read_text()
+    assert "| random | urb-jax baseline | training_eps_2 |" in (tmp_path / "leaderboard.md").read_text()
 
 
 def test_cli_refusal_is_a_clean_error(tmp_path, capsys):

@@ -1,7 +1,9 @@
 """`urb-jax metrics`: recompute a finished run's metrics from its records.
 
 Runs written before a metric column existed (e.g. the `*_duration` columns) get it without
-re-simulating anything; the result is what `urb-jax train` / `baseline` would write today."""
+re-simulating anything; the result is what `urb-jax train` / `baseline` would write today. Their
+exp_config.json gains today's URB-facing keys too (names and phases, `urb_jax.reporting.urb_names`),
+so URB's leaderboard reads older runs right."""
 
 from __future__ import annotations
 
@@ -21,10 +23,15 @@ def recompute(folder: str) -> dict[str, float]:
     """Rewrite FOLDER/metrics/{Benchmark,Vector}Metrics.csv (atomically) from records.parquet."""
     from pathlib import Path
 
+    from urb_jax.core.atomic import write_json
     from urb_jax.reporting.records import finished_run_config, write_run_metrics
+    from urb_jax.reporting.urb_names import names_of, phase_keys
 
     cfg = finished_run_config(folder)
-    return write_run_metrics(Path(folder), int(cfg["human_days"]), int(cfg["training_days"]))[0]
+    metrics, records = write_run_metrics(Path(folder), int(cfg["human_days"]), int(cfg["training_days"]))
+    cfg.update(names_of(cfg), **phase_keys(records, int(cfg["human_days"])))
+    write_json(Path(folder) / "exp_config.json", cfg)
+    return metrics
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,7 +8,7 @@ import argparse
 
 import numpy as np
 
-from urb_jax.algorithms.registry import ALGORITHMS
+from urb_jax.algorithms.registry import ALGORITHMS, URB_ALIASES
 from urb_jax.commands.common import add_network_flags
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.dry_run import describe, plan_train
@@ -20,7 +20,9 @@ METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_le
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("train", help="train CAV policies (hybrid surrogate + SUMO; metrics from SUMO)")
-    parser.add_argument("--alg", default="iql", choices=tuple(ALGORITHMS), help="algorithm (default iql)")
+    parser.add_argument("--alg", default="iql", choices=(*ALGORITHMS, *URB_ALIASES),
+                        help="algorithm (default iql, URB's iql_torchrl; URB's bandit iql is iql_star, its "
+                             "ippo ippo_star; URB's *_torchrl names are accepted: docs/experiment.md)")
     add_network_flags(parser)
     parser.add_argument("--task-conf", default="config1",
                         help="task config id or .json path (default config1)")

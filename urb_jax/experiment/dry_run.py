@@ -14,13 +14,14 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from urb_jax.algorithms.registry import algorithm
+from urb_jax.algorithms.registry import algorithm, canonical
 from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.core.configio import Loaded
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.run import TrainArgs, TrainSetup, check_runnable, load_setup
 from urb_jax.experiment.run_folder import CONFIG_FILE, ResultsExistError, check_exp_id, train_run_names
 from urb_jax.experiment.urb_configs import train_configs
+from urb_jax.reporting.urb_names import train_names
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,7 @@ def plan_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "co
     """What `run.run_train` with these arguments would run; raises the error it would stop on."""
     seeds = seeds or [0]
     args: TrainArgs = {
-        "alg": alg, "net": net or DEFAULT_NETWORK, "task_conf": task_conf, "alg_conf": alg_conf,
+        "alg": canonical(alg), "net": net or DEFAULT_NETWORK, "task_conf": task_conf, "alg_conf": alg_conf,
         "env_conf": env_conf, "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode,
         "networks_dir": networks_dir, "train_days": train_days, "drop_unroutable": drop_unroutable}
     setup = load_setup(args)
@@ -86,6 +87,9 @@ def describe(plan: TrainPlan) -> list[str]:
         f"algorithm    {args['alg']} (reads URB's {algorithm(args['alg']).urb} configs), "
         f"mode {args['mode']}, seeds {','.join(map(str, plan.seeds))}, env seed {args['env_seed']}",
         f"results      {', '.join(map(str, plan.folders))} (not created by a dry run)",
+        "URB names    " + ", ".join(f"{k} {v!r}" for k, v in train_names(
+            args["alg"], args["mode"], plan.setup.hyb_path.stem, plan.setup.hyb.train_days,
+            args["alg_conf"]).items()) + " (exp_config.json, read by URB's leaderboard)",
     ]
     for kind, loaded in plan.configs.items():
         lines += _config_lines(kind, loaded)

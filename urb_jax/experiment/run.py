@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from urb_jax.algorithms.baselines import CavPolicy, make_baseline
-from urb_jax.algorithms.registry import load_algo_config
+from urb_jax.algorithms.registry import canonical, load_algo_config
 from urb_jax.city.demand import scale_demand
 from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.city.scenario import Scenario, load_scenario
@@ -66,6 +66,7 @@ from urb_jax.experiment.run_log import log_run_to, with_run_log
 from urb_jax.experiment.urb_configs import CONFIG_ALIASES_KEY, config_aliases
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.reporting.records import RecordsWriter, remove_parts
+from urb_jax.reporting.urb_names import baseline_names, names_of, train_names
 from urb_jax.sumo_bridge import DayExecutor, DayResult, InProcessExecutor, MemoExecutor, SumoPool, run_day
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
@@ -220,7 +221,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     net = net or DEFAULT_NETWORK
     task_conf, alg_conf, env_conf, hybrid_conf = map(_resolved, (task_conf, alg_conf, env_conf, hybrid_conf))
     args: TrainArgs = {
-        "alg": alg, "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
+        "alg": canonical(alg), "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
         "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode, "networks_dir": networks_dir,
         "train_days": train_days, "executor": executor_kind, "ray_address": ray_address,
         "drop_unroutable": drop_unroutable}
@@ -232,7 +233,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     if human_phase_from:
         human = reuse_human_phase(Path(results_dir) / human_phase_from, config, setup.scn, setup.task,
                                   setup.hyb, env_seed, calibrate=mode != "sumo")
-    names = train_run_names(exp_id, alg, mode, net, setup.task_path.stem, seeds)
+    names = train_run_names(exp_id, args["alg"], mode, net, setup.task_path.stem, seeds)
     folders = {s: create_results_dir(results_dir, name, overwrite)
                for s, name in zip(seeds, names, strict=True)}
     configs = _seed_configs(config, args, seeds, folders, setup.hyb)
@@ -337,9 +338,10 @@ def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | No
     return {
         **to_dict(env), **to_dict(task), **{f"hybrid_{k}": v for k, v in to_dict(hyb).items()},
         "network": scn.name, "net_file": scn.net_file, "env_seed": args["env_seed"],
-        "env_config": env_path.stem, "task_config": task_path.stem, "alg_config": args["alg_conf"],
-        "hybrid_config": hyb_path.stem, "algorithm": args["alg"], "mode": args["mode"],
-        "script": "urb-jax train", "num_agents": scn.n_agents,
+        "env_config": env_path.stem, "task_config": task_path.stem, "hybrid_config": hyb_path.stem,
+        **train_names(args["alg"], args["mode"], hyb_path.stem, hyb.train_days, args["alg_conf"]),
+        "training_eps": None,  # the task's 200 is no train run's: the SUMO training days, set at the end
+        "mode": args["mode"], "num_agents": scn.n_agents,
         "num_machines": int(scn.n_agents * task.ratio_machines), "exp_type": "normal",
         "human_days": task.human_learning_episodes, "versions": versions(), "command": sys.argv,
         "status": "running", "human_phase_from": human_phase_from,
@@ -413,9 +415,10 @@ def _finish_group(folders: list[Path], configs: list[dict[str, Any]], result: li
 def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H: int,
                   wall: float) -> RunResult:
     T = summary.sumo_training_days
-    metrics = write_outputs(folder, H, T)
+    metrics, phases = write_outputs(folder, H, T)
     write_rounds(folder, summary.rounds)
-    mark_done(folder, config, wall_time_s=round(wall, 2), training_days=T, sumo_training_days=T,
+    mark_done(folder, config, **names_of(config), **phases, wall_time_s=round(wall, 2), training_days=T,
+              sumo_training_days=T,
               surrogate_training_days=summary.surrogate_days, rounds=summary.n_rounds,
               alg_config_values=summary.alg_config, aon_same_humans=summary.aon_same_humans)
     drop_journal(folder.parent, config)
@@ -468,9 +471,9 @@ def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task
         day_fn = load_replay(Path(results_dir) / human_phase_from, config, scn.agent_id, H, day_fn)
     run_experiment(scn, task, env, policy, env_seed=env_seed, day_fn=day_fn, sink=writer, progress=progress)
     writer.close()
-    metrics = write_outputs(folder, H, T)
+    metrics, phases = write_outputs(folder, H, T)
     wall = time.perf_counter() - t0
-    mark_done(folder, config, wall_time_s=round(wall, 2), sumo_days_run=memo.simulated,
+    mark_done(folder, config, **phases, wall_time_s=round(wall, 2), sumo_days_run=memo.simulated,
               sumo_days_repeated=memo.reused)
     return RunResult(folder, metrics, wall, days=H + T + task.test_eps,
                      replayed_days=H if human_phase_from else 0)
@@ -507,8 +510,8 @@ def _baseline_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvC
     return {
         **to_dict(env), **to_dict(task),
         "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed,
-        "env_config": env_path.stem, "task_config": task_path.stem, "alg_config": "baseline",
-        "baseline_model": model, "algorithm": f"baseline_{model}", "script": "urb-jax baseline",
+        "env_config": env_path.stem, "task_config": task_path.stem,
+        **baseline_names(model, task.training_eps),
         "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
         "exp_type": "normal", "human_days": task.human_learning_episodes, "training_days": task.training_eps,
         "versions": versions(), "urb_jax_version": __version__, "command": sys.argv,

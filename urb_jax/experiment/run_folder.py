@@ -22,6 +22,7 @@ from urb_jax.core.atomic import umask, write_bytes, write_json
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import at_hard_exit
 from urb_jax.reporting.records import remove_parts, write_plots, write_run_metrics
+from urb_jax.reporting.urb_names import phase_keys
 
 CONFIG_FILE = "exp_config.json"
 log = logging.getLogger(__name__)
@@ -125,11 +126,13 @@ def write_config(folder: Path, config: dict[str, Any]) -> None:
     write_json(folder / CONFIG_FILE, config)
 
 
-def write_outputs(folder: Path, human_days: int, training_days: int) -> dict[str, float]:
-    """The metric files and plots of a finished run, from its records; returns the metrics."""
+def write_outputs(folder: Path, human_days: int,
+                  training_days: int) -> tuple[dict[str, float], dict[str, Any]]:
+    """The metric files and plots of a finished run, from its records; returns the metrics and
+    the phase keys that describe the records to URB's tools (`urb_names.phase_keys`)."""
     metrics, records = write_run_metrics(folder, human_days, training_days)
     write_plots(folder, records, human_days, training_days, smooth_by=1)
-    return metrics
+    return metrics, phase_keys(records, human_days)
 
 
 def mark_done(folder: Path, config: dict[str, Any], **updates: Any) -> None:

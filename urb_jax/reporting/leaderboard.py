@@ -1,7 +1,11 @@
 """Aggregate runs over seeds: mean and std per metric, WR in %, as Markdown and CSV.
 
-Runs are grouped like URB's leaderboard generator: same network, task config, env config and
-algorithm (or baseline model); each run contributes the first row of its BenchmarkMetrics.csv.
+Runs are grouped as URB's leaderboard generator groups them (`urb_names.URB_COLLAPSE_FIELDS`:
+exp type, env and task config, network, algorithm, script, algorithm config), with URB's names:
+`algorithm` is URB's (iql_torchrl, iql, ... ; a baseline's model), `script` says who ran it, so a
+urb-jax row never merges with a row of URB's own runs, nor a hybrid run with a `--mode sumo` one.
+Older urb-jax runs are read under their current names (`urb_names.names_of`). Each run
+contributes the first row of its BenchmarkMetrics.csv.
 """
 
 from __future__ import annotations
@@ -14,8 +18,9 @@ import numpy as np
 import pandas as pd
 
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.reporting.urb_names import leaderboard_fields
 
-KEYS = ["network", "algorithm", "task_config", "env_config"]
+KEYS = ["network", "algorithm", "script", "alg_config", "task_config", "env_config", "exp_type"]
 SHOWN = ["t_pre", "t_CAV", "t_HDV_test", "t_test", "cost_of_learning", "delta_V", "delta_L",
          "CAV_advantage", "Effect_of_change", "Effect_of_remaining",
          "t_pre_duration", "t_CAV_duration",  # the published tables' measure (docs/metrics.md)
@@ -45,12 +50,9 @@ def collect_folders(folders: list[Path]) -> pd.DataFrame:
         optimum = cfg_path.parent / "optimum.json"  # `urb-jax optimum RUN`: the SUMO-checked reference
         if optimum.is_file():
             metrics["optimality_gap"] = json.loads(optimum.read_text())["optimality_gap"]
-        algorithm = cfg.get("algorithm") or f"baseline_{cfg.get('baseline_model', '?')}"
-        rows.append({"exp_id": cfg_path.parent.name, "folder": str(cfg_path.parent),
-                     "network": cfg.get("network", "?"),
-                     "algorithm": algorithm, "task_config": cfg.get("task_config", "?"),
-                     "env_config": cfg.get("env_config", "?"), "env_seed": cfg.get("env_seed"),
-                     **metrics})
+        fields = {k: ("?" if v is None else v) for k, v in leaderboard_fields(cfg).items()}
+        rows.append({"exp_id": cfg_path.parent.name, "folder": str(cfg_path.parent), **fields,
+                     "env_seed": cfg.get("env_seed"), **metrics})
     return pd.DataFrame(rows)
 
 
@@ -59,6 +61,7 @@ def aggregate(runs: pd.DataFrame) -> pd.DataFrame:
     out = []
     for key, g in runs.groupby(KEYS, sort=True):
         row = dict(zip(KEYS, key, strict=True))
+        row["alg"] = g["alg"].iloc[0]  # urb-jax's id (empty for URB's own runs)
         row["runs"] = len(g)
         row["WR"] = float(100.0 * g["winrate"].mean()) if g["winrate"].notna().any() else np.nan
         for m in SHOWN:
@@ -70,11 +73,18 @@ def aggregate(runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
+def label(row: pd.Series) -> str:
+    """URB's algorithm name, with urb-jax's --alg id where they differ ("iql (--alg iql_star)")."""
+    alg, urb = str(row.get("alg") or ""), str(row["algorithm"])
+    return urb if not alg or alg in (urb, f"baseline_{urb}") else f"{urb} (--alg {alg})"
+
+
 def to_markdown(table: pd.DataFrame) -> str:
-    head = ["network", "algorithm", "task", "runs", "WR %", *SHOWN]
+    head = ["network", "algorithm", "script", "alg_config", "task", "runs", "WR %", *SHOWN]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for _, r in table.iterrows():
-        cells = [str(r["network"]), str(r["algorithm"]), str(r["task_config"]), str(r["runs"]),
+        cells = [str(r["network"]), label(r), str(r["script"]), str(r["alg_config"]), str(r["task_config"]),
+                 str(r["runs"]),
                  "N/A" if pd.isna(r["WR"]) else f"{r['WR']:.0f}"]
         for m in SHOWN:
             mean, std = r.get(f"{m}_mean", np.nan), r.get(f"{m}_std", np.nan)

@@ -29,14 +29,22 @@ def suite_tables(folders: list[Path]) -> str:
         head = ["algorithm", "seeds", "WR %", *[name for _, name in TABLE_COLUMNS]]
         out.append("| " + " | ".join(head) + " |")
         out.append("|" + "---|" * len(head))
-        for _, r in g.iterrows():
-            cells = [str(r["algorithm"]), str(int(r["runs"])), _num(r.get("WR"), 0)]
+        names = [run_label(r) for _, r in g.iterrows()]
+        for (_, r), name in zip(g.iterrows(), names, strict=True):
+            if names.count(name) > 1:  # e.g. one algorithm with two configs or trainers: say which
+                name = f"{name} ({r['alg_config']}; {r['script']})"
+            cells = [name, str(int(r["runs"])), _num(r.get("WR"), 0)]
             for col, _ in TABLE_COLUMNS:
                 mean, std = r.get(f"{col}_mean", np.nan), r.get(f"{col}_std", np.nan)
                 cells.append(_num(mean) + (f" ± {std:.4f}" if r["runs"] > 1 and std == std else ""))
             out.append("| " + " | ".join(cells) + " |")
         out.append("")
     return "\n".join(out)
+
+
+def run_label(row: pd.Series) -> str:
+    """A suite's row name: urb-jax's id (--alg, baseline_<model>); URB's name for URB's own runs."""
+    return str(row.get("alg") or row["algorithm"])
 
 
 def _num(x: float | None, digits: int = 4) -> str:
@@ -67,14 +75,19 @@ def suite_figures(folders: list[Path], out_dir: Path) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for key, g in runs.groupby(KEYS, sort=True):
-        name = "_".join(str(k) for k in key[:3]).replace("/", "-")
+        r = dict(zip(KEYS, key, strict=True))
+        label = run_label(g.iloc[0])
+        name = f"{r['network']}_{label}_{r['task_config']}".replace("/", "-")
+        if any(p.stem == name for p in written):  # one label twice (other config or trainer)
+            name = f"{name}_{len(written)}"
         days = [per_day_means(Path(f)) for f in g["folder"]]
         mean = pd.concat([d[0] for d in days]).groupby(level=0).mean()
         H, T = days[0][1], days[0][2]
         last = int(mean.index.max())
         fig, ax = plt.subplots(figsize=(9, 4.5))
         plot_phases(ax, mean, H, T, last)
-        ax.set_title(f"{key[0]}: {key[1]}, task {key[2]} ({len(days)} seed{'s' * (len(days) > 1)})")
+        seeds = f"{len(days)} seed{'s' * (len(days) > 1)}"
+        ax.set_title(f"{r['network']}: {label} ({r['alg_config']}), task {r['task_config']} ({seeds})")
         ax.set_xlabel("day (SUMO days as recorded)")
         ax.set_ylabel("mean travel time (min)")
         ax.legend(fontsize=8, loc="best")
