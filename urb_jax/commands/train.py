@@ -9,11 +9,12 @@ import argparse
 import numpy as np
 
 from urb_jax.algorithms.registry import ALGORITHMS
-from urb_jax.commands.common import add_network_flags
+from urb_jax.commands.common import add_network_flags, add_set_flag
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.dry_run import describe, plan_train
 from urb_jax.experiment.hybrid.plan import MODES
 from urb_jax.experiment.run import RunResult, resume_train, run_train
+from urb_jax.experiment.urb_configs import TRAIN_SECTIONS
 
 METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_learning", "delta_V")
 
@@ -28,6 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--env-conf", default="config1", help="env config id or .json path (default config1)")
     parser.add_argument("--hybrid-conf", default="default",
                         help="hybrid round/budget config id or path (configs/hybrid, default 'default')")
+    add_set_flag(parser, TRAIN_SECTIONS)
     parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     parser.add_argument("--seeds", default=None, type=seed_list,
                         help="comma-separated training seeds, e.g. 0,1,2 (trained together under vmap, "
@@ -63,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
         return dry_run(args)
     if args.resume:
         outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
-                            executor_kind=args.executor, ray_address=args.ray_address)
+                            executor_kind=args.executor, ray_address=args.ray_address,
+                            overrides=args.overrides)
     else:
         seeds = args.seeds or [args.seed]
         outs = run_train(
@@ -72,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
             exp_id=args.id, mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
             overwrite=args.overwrite, progress=not args.no_progress, train_days=args.train_days,
             executor_kind=args.executor or "pool", ray_address=args.ray_address,
-            human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable)
+            human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
+            overrides=args.overrides)
     for out in outs:
         m = out.metrics
         print(f"results: {out.folder}  ({out.wall_time_s:.1f} s)")
@@ -99,7 +103,7 @@ def dry_run(args: argparse.Namespace) -> int:
         hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=args.seeds or [args.seed], exp_id=args.id,
         mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
         overwrite=args.overwrite, train_days=args.train_days, drop_unroutable=args.drop_unroutable,
-        human_phase_from=args.human_phase_from)
+        human_phase_from=args.human_phase_from, overrides=args.overrides)
     print("dry run: every config loaded and checked; nothing simulated, no results folder created.")
     for line in describe(plan):
         print(line)
