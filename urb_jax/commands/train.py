@@ -13,6 +13,7 @@ from urb_jax.commands.common import add_network_flags, add_set_flag
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.dry_run import describe, plan_train
 from urb_jax.experiment.hybrid.plan import MODES
+from urb_jax.experiment.round_log import LOGGERS
 from urb_jax.experiment.run import RunResult, resume_train, run_train
 from urb_jax.experiment.urb_configs import TRAIN_SECTIONS
 
@@ -48,6 +49,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing results with this id")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--log", choices=LOGGERS, default=None,
+                        help="also log each round (rounds.csv's values) live to results/<id>/tensorboard/ "
+                             "(needs pip install 'urb-jax[tensorboard]'); --resume keeps the recorded choice")
     parser.add_argument("--executor", choices=("pool", "ray"), default=None,
                         help="where SUMO days run: pool (default; local processes) or ray (a Ray cluster, "
                              "pip install 'urb-jax[ray]'); --resume uses the recorded one unless given")
@@ -66,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     if args.resume:
         outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
                             executor_kind=args.executor, ray_address=args.ray_address,
-                            overrides=args.overrides)
+                            overrides=args.overrides, log=args.log)
     else:
         seeds = args.seeds or [args.seed]
         outs = run_train(
@@ -76,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
             overwrite=args.overwrite, progress=not args.no_progress, train_days=args.train_days,
             executor_kind=args.executor or "pool", ray_address=args.ray_address,
             human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
-            overrides=args.overrides)
+            overrides=args.overrides, log=args.log)
     for out in outs:
         m = out.metrics
         print(f"results: {out.folder}  ({out.wall_time_s:.1f} s)")
@@ -103,7 +107,7 @@ def dry_run(args: argparse.Namespace) -> int:
         hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=args.seeds or [args.seed], exp_id=args.id,
         mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
         overwrite=args.overwrite, train_days=args.train_days, drop_unroutable=args.drop_unroutable,
-        human_phase_from=args.human_phase_from, overrides=args.overrides)
+        human_phase_from=args.human_phase_from, overrides=args.overrides, log=args.log)
     print("dry run: every config loaded and checked; nothing simulated, no results folder created.")
     for line in describe(plan):
         print(line)

@@ -18,6 +18,7 @@ from urb_jax.algorithms.registry import algorithm
 from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.core.configio import Loaded, in_section
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment.round_log import check_logger
 from urb_jax.experiment.run import TrainArgs, TrainSetup, check_runnable, load_setup
 from urb_jax.experiment.run_folder import CONFIG_FILE, ResultsExistError, check_exp_id, train_run_names
 from urb_jax.experiment.urb_configs import run_overrides, train_configs
@@ -39,8 +40,10 @@ def plan_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "co
                env_seed: int = 42, seeds: list[int] | None = None, exp_id: str | None = None,
                mode: str = "hybrid", networks_dir: str | None = None, results_dir: str = "results",
                overwrite: bool = False, train_days: int | None = None, drop_unroutable: bool = False,
-               human_phase_from: str | None = None, overrides: list[str] | None = None) -> TrainPlan:
+               human_phase_from: str | None = None, overrides: list[str] | None = None,
+               log: str | None = None) -> TrainPlan:
     """What `run.run_train` with these arguments would run; raises the error it would stop on."""
+    check_logger(log)
     seeds = seeds or [0]
     args: TrainArgs = {
         "alg": alg, "net": net or DEFAULT_NETWORK, "task_conf": task_conf, "alg_conf": alg_conf,

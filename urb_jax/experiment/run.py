@@ -50,6 +50,7 @@ from urb_jax.experiment.human_phase import (
 from urb_jax.experiment.hybrid.plan import AlgoConfig, HybridConfig, load_hybrid_config
 from urb_jax.experiment.hybrid.trainer import Stopped, TrainSummary, train_group
 from urb_jax.experiment.protocol import DayFn, run_experiment
+from urb_jax.experiment.round_log import check_logger, round_log
 from urb_jax.experiment.run_folder import (
     CONFIG_FILE,
     check_exp_id,
@@ -224,12 +225,14 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
               executor: DayExecutor | None = None, stop_after_round: int | None = None,
               executor_kind: str = "pool", ray_address: str | None = None,
               human_phase_from: str | None = None, drop_unroutable: bool = False,
-              overrides: list[str] | None = None) -> list[RunResult]:
+              overrides: list[str] | None = None, log: str | None = None) -> list[RunResult]:
     """Train every seed (sharing the human phase and the SUMO executor; groups of up to
     `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
     `human_phase_from`: reuse that earlier train run's human phase instead of simulating it.
-    `overrides`: `--set SECTION.KEY=VALUE` items (recorded; a resume re-applies them)."""
+    `overrides`: `--set SECTION.KEY=VALUE` items (recorded; a resume re-applies them). `log`:
+    "tensorboard" logs each round to results/<id>/tensorboard/ (`round_log`)."""
     enable_compile_cache()
+    check_logger(log)
     seeds = seeds or [0]
     net = net or DEFAULT_NETWORK
     task_conf, alg_conf, env_conf, hybrid_conf = map(_resolved, (task_conf, alg_conf, env_conf, hybrid_conf))
@@ -237,7 +240,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
         "alg": alg, "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
         "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode, "networks_dir": networks_dir,
         "train_days": train_days, "executor": executor_kind, "ray_address": ray_address,
-        "drop_unroutable": drop_unroutable, "overrides": list(overrides or [])}
+        "drop_unroutable": drop_unroutable, "overrides": list(overrides or []), "log": log}
     t0 = time.perf_counter()
     setup = load_setup(args)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=mode)
@@ -292,11 +295,13 @@ def _seed_configs(config: dict[str, Any], args: TrainArgs, seeds: list[int], fol
 @with_run_log
 def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
                  executor: DayExecutor | None = None, executor_kind: str | None = None,
-                 ray_address: str | None = None, overrides: list[str] | None = None) -> list[RunResult]:
+                 ray_address: str | None = None, overrides: list[str] | None = None,
+                 log: str | None = None) -> list[RunResult]:
     """Continue results/<exp_id>/ (and the seeds trained together with it) from the group's newest
     checkpoint, with the recorded arguments (and the recorded SUMO executor unless `executor_kind`
     overrides it); one result per seed of the group. The recorded `--set` overrides are
-    re-applied; `overrides` given here must be the same ones (`check_resume_overrides`)."""
+    re-applied; `overrides` given here must be the same ones (`check_resume_overrides`). `log`:
+    the round logger (default: the recorded one)."""
     enable_compile_cache()
     folder = Path(results_dir) / check_exp_id(exp_id)
     if not (folder / CONFIG_FILE).is_file():
@@ -317,6 +322,9 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
         raise UrbJaxError(f"{folder}: this run is already complete.")
     args: TrainArgs = configs[0]["train_args"]
     check_resume_overrides(folder, args, overrides)
+    if log is not None:
+        args = {**args, "log": log}
+    check_logger(args.get("log"))
     seeds = [c["train_args"]["seed"] for c in configs]
     setup = load_setup(args)
     with _stops_cleanly(folders), \
@@ -422,10 +430,11 @@ def _train_groups(setup: TrainSetup, args: TrainArgs, configs: dict[int, dict[st
 def _train(setup: TrainSetup, args: TrainArgs, seeds: list[int], folders: list[Path], executor: DayExecutor,
            human: HumanPhase | None, progress: bool, stop_after_round: int | None
            ) -> list[TrainSummary] | Stopped:
-    return train_group(scn=setup.scn, task=setup.task, env_cfg=setup.env, alg=args["alg"],
-                       alg_config=setup.alg_config, cfg=setup.hyb, mode=args["mode"], seeds=seeds,
-                       env_seed=args["env_seed"], folders=folders, executor=executor, human=human,
-                       progress=progress, stop_after_round=stop_after_round)
+    with round_log(folders, args.get("log"), resumed=human is None) as on_round:
+        return train_group(scn=setup.scn, task=setup.task, env_cfg=setup.env, alg=args["alg"],
+                           alg_config=setup.alg_config, cfg=setup.hyb, mode=args["mode"], seeds=seeds,
+                           env_seed=args["env_seed"], folders=folders, executor=executor, human=human,
+                           progress=progress, stop_after_round=stop_after_round, on_round=on_round)
 
 
 def _finish_group(folders: list[Path], configs: list[dict[str, Any]], result: list[TrainSummary] | Stopped,
