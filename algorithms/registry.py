@@ -8,7 +8,7 @@ files load under URB's key names (`urb_jax.core.urb_keys`).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -22,7 +22,7 @@ from urb_jax.algorithms.configs import (
     PPOConfig,
 )
 from urb_jax.algorithms.learner import Learner
-from urb_jax.core.configio import Loaded, find_config, load_resolved
+from urb_jax.core.configio import Loaded, Override, find_config, load_resolved
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.urb_keys import ALGO_FAMILIES, algo_family
 from urb_jax.game.env import RoutingEnv
@@ -72,18 +72,19 @@ def urb_algorithm(name: str) -> str:
     return algorithm(name).urb
 
 
-def load_algo_config(name: str, config: str = "config1") -> Any:
+def load_algo_config(name: str, config: str = "config1", overrides: Sequence[Override] = ()) -> Any:
     """configs/algo/<name>/<config>.json (or a path) -> the algorithm's typed config."""
-    return load_algo(name, config).config
+    return load_algo(name, config, overrides).config
 
 
-def load_algo(name: str, config: str = "config1") -> Loaded[Any]:
-    """The algorithm's typed config from our file or URB's (URB's key names), with its resolution."""
+def load_algo(name: str, config: str = "config1", overrides: Sequence[Override] = ()) -> Loaded[Any]:
+    """The algorithm's typed config from our file or URB's (URB's key names; `overrides`: its
+    --set items), with its resolution."""
     name = canonical(name)
     alg = ALGORITHMS[name]
     path = find_config("algo", config, subdir=name)
     check_urb_folder(path, name)
-    return load_resolved(alg.config_class, path, ALGO_FAMILIES[alg.urb])
+    return load_resolved(alg.config_class, path, ALGO_FAMILIES[alg.urb], overrides)
 
 
 def for_urb(urb_name: str) -> str:
@@ -110,13 +111,13 @@ def load_urb_algo(path: str | Path) -> Loaded[Any]:
     return load_algo(name, str(path))
 
 
-def load_baseline_config(config: str) -> Loaded[BaselineConfig]:
+def load_baseline_config(config: str, overrides: Sequence[Override] = ()) -> Loaded[BaselineConfig]:
     """URB's baseline algo config (config/algo_config/baseline/<name>.json, by path)."""
     path = find_config("algo", config, subdir="baseline")
     if path.resolve().parent.parent.name == "algo_config" and path.resolve().parent.name != "baseline":
         raise ConfigError(f"{path}: a config of URB's '{path.resolve().parent.name}', not of its "
                           "baselines (config/algo_config/baseline).")
-    return load_resolved(BaselineConfig, path, ALGO_FAMILIES["baseline"])
+    return load_resolved(BaselineConfig, path, ALGO_FAMILIES["baseline"], overrides)
 
 
 def check_urb_folder(path: Path, name: str) -> None:

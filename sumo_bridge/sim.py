@@ -12,12 +12,16 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import io
+import logging
 import os
 import shutil
+import sys
 import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -31,6 +35,36 @@ from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayRe
 
 # libsumo is one simulation per process: which Simulator's state it holds, if started at all.
 _LIBSUMO: dict[str, object] = {"started": False, "owner": None}
+log = logging.getLogger(__name__)
+# The two lines libsumo/__init__.py prints when pyarrow's version differs from the libarrow
+# libsumo was built against (its buildConfig.ARROW_SO_VERSION), e.g. pyarrow 26 and libarrow2300.
+_ARROW_NOTICE = ("Warning! pyarrow is installed with version ",
+                 " Try to uninstall pyarrow or install a matching pyarrow version")
+
+
+def import_libsumo() -> ModuleType:
+    """libsumo, imported without its pyarrow-version notice (every other line it prints is kept).
+
+    The notice is harmless here: the libsumo wheel carries its own libarrow (auditwheel-renamed,
+    libsumo.libs/libarrow-<hash>.so.2300), pyarrow loads its own libarrow.so.2600, and both are
+    loaded locally by their extension modules, so neither resolves the other's symbols; SUMO uses
+    arrow only to write .parquet outputs, and urb-jax asks for tripinfo XML (docs/sumo_bridge.md,
+    "pyarrow and libsumo"). Pinning pyarrow to libsumo's build would only move the mismatch to the
+    next SUMO release."""
+    if "libsumo" in sys.modules:
+        return sys.modules["libsumo"]
+    printed = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(printed):
+            import libsumo
+    finally:
+        lines = printed.getvalue().splitlines(keepends=True)
+        notice = [line for line in lines if line.startswith(_ARROW_NOTICE)]
+        sys.stdout.write("".join(line for line in lines if not line.startswith(_ARROW_NOTICE)))
+        if notice:
+            log.debug("libsumo's pyarrow notice, not shown (harmless: import_libsumo): %s",
+                      notice[0].strip())
+    return libsumo
 
 
 class Simulator:
@@ -57,8 +91,7 @@ class Simulator:
         return path
 
     def _load(self, key: tuple) -> None:
-        import libsumo
-
+        libsumo = import_libsumo()
         net_file, routes, seed, _ = key
         self._n_loads += 1
         trip = self.workdir / f"trip-{self._n_loads}.xml"
@@ -80,8 +113,7 @@ class Simulator:
 
     def close(self) -> None:
         if _LIBSUMO["owner"] is self:
-            import libsumo
-
+            libsumo = import_libsumo()
             with contextlib.suppress(Exception):
                 libsumo.close()
             _LIBSUMO["started"], _LIBSUMO["owner"] = False, None
@@ -97,8 +129,7 @@ class Simulator:
 
     def _run_day(self, scn: Scenario, choices: np.ndarray, seed: int,
                  is_cav: np.ndarray | None, next_seed: int) -> DayResult:
-        import libsumo
-
+        libsumo = import_libsumo()
         t0 = time.perf_counter()
         cfg = self.config
         choices = check_choices(scn, choices)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import re
 import subprocess
+import sys
 from collections import Counter
 from pathlib import Path
 
@@ -84,6 +85,64 @@ def test_run_day_matches_sumo_cli_on_saint_arnoult(real_networks_dir, tmp_path):
 
     scn = load_scenario("saint_arnoult", networks_dir=real_networks_dir)
     _check_against_cli(scn, scn.fft.argmin(1), np.zeros(scn.n_agents, bool), 42, tmp_path)
+
+
+_PYARROW_FIRST = """
+import sys
+import numpy as np
+import pyarrow as pa, pyarrow.parquet as pq
+pq.write_table(pa.table({"x": [1, 2]}), sys.argv[1] + "/t.parquet")  # pyarrow's own libarrow in use
+assert pq.read_table(sys.argv[1] + "/t.parquet").column("x").to_pylist() == [1, 2]
+from urb_jax.city.scenario import load_scenario
+from urb_jax.sumo_bridge import run_day
+scn = load_scenario("urb_grid")
+rng = np.random.default_rng(3)
+choices, is_cav = rng.integers(0, scn.k, size=scn.n_agents), rng.random(scn.n_agents) < 0.4
+np.save(sys.argv[1] + "/leave.npy", run_day(scn, choices, seed=7, is_cav=is_cav).leave_time)
+"""
+
+
+def test_sumo_day_start_prints_no_pyarrow_notice_and_matches_cli(grid_scenario, tmp_path):
+    """libsumo/__init__.py prints a pyarrow-version notice on import (pyarrow 26 vs its libarrow
+    2300); urb-jax drops exactly that notice (sim.import_libsumo). Its claim of harm is checked:
+    with pyarrow's libarrow loaded and used first, the libsumo day still equals SUMO's CLI run."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    out = subprocess.run([sys.executable, "-c", _PYARROW_FIRST, str(tmp_path)], capture_output=True,
+                         text=True, timeout=300, env=env, check=True)
+    assert "pyarrow" not in out.stdout + out.stderr, out.stdout + out.stderr
+    assert "libarrow" not in out.stdout + out.stderr
+    rng = np.random.default_rng(3)
+    scn = grid_scenario
+    choices, is_cav = rng.integers(0, scn.k, size=scn.n_agents), rng.random(scn.n_agents) < 0.4
+    trips, _ = _cli_day(scn, choices, is_cav, 7, tmp_path)
+    arrival = [float(trips[str(a)]["arrival"]) for a in scn.agent_id]
+    np.testing.assert_array_equal(np.load(tmp_path / "leave.npy"), arrival)
+
+
+def test_import_libsumo_keeps_its_other_output(monkeypatch, capsys):
+    """Only the notice's two lines are dropped: anything else libsumo prints on import stays."""
+    import builtins
+    import types
+
+    from urb_jax.sumo_bridge import sim
+
+    real_import = builtins.__import__
+
+    def fake_import(name, *args, **kwargs):
+        if name == "libsumo":
+            print("Warning! pyarrow is installed with version 26.0.1 which might be incompatible ...")
+            print(" Try to uninstall pyarrow or install a matching pyarrow version, if you encounter "
+                  "problems.")
+            print("SUMO says something else")
+            return types.ModuleType("libsumo")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.delitem(sys.modules, "libsumo", raising=False)
+    monkeypatch.setattr("builtins.__import__", fake_import)
+    module = sim.import_libsumo()
+    monkeypatch.undo()
+    assert module.__name__ == "libsumo"
+    assert capsys.readouterr().out == "SUMO says something else\n"
 
 
 def test_repeated_days_are_identical(grid_scenario):

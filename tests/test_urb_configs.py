@@ -215,19 +215,13 @@ def test_dry_run_exits_2_where_the_run_would_stop(tmp_path, capsys, no_simulatio
     assert list((tmp_path / "results").iterdir()) == [tmp_path / "results" / "taken"]
 
 
-def test_baseline_alg_conf_sets_training_days(tmp_path, monkeypatch) -> None:
-    """URB's baselines.py reads training_eps from its baseline algo config; so does urb-jax baseline."""
-    from urb_jax.commands import baseline
-
-    seen = {}
-
-    def fake_run_baseline(**kwargs):
-        seen.update(kwargs)
-        raise ConfigError("stop here")
-
-    monkeypatch.setattr(baseline, "run_baseline", fake_run_baseline)
+def test_baseline_alg_conf_sets_training_days(tmp_path) -> None:
+    """URB's baselines.py reads training_eps from its baseline algo config; so does urb-jax baseline
+    (and `--set alg.training_eps` overrides it there, as a key of that file)."""
     conf = tmp_path / "algo_config" / "baseline" / "c.json"
     conf.parent.mkdir(parents=True)
     conf.write_text(json.dumps({"training_eps": 7}))
-    assert cli.main(["baseline", "--alg-conf", str(conf), "--results-dir", str(tmp_path)]) == 2
-    assert seen["task_overrides"] == {"training_eps": 7}
+    loaded, task_keys = run._baseline_configs("config1", "config1", str(conf), None, None)
+    assert task_keys == {"training_eps": 7} and loaded["alg"].config.training_eps == 7
+    _, task_keys = run._baseline_configs("config1", "config1", str(conf), ["alg.training_eps=9"], None)
+    assert task_keys == {"training_eps": 9}

@@ -6,9 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from urb_jax.algorithms.registry import load_baseline_config
-from urb_jax.commands.common import add_network_flags
-from urb_jax.experiment.run import run_baseline
+from urb_jax.commands.common import add_network_flags, add_set_flag
+from urb_jax.experiment.run import BASELINE_SECTIONS, run_baseline
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="URB baseline algo config (.json path, e.g. URB's config/algo_config/baseline/"
                              "config1.json): its training_eps sets the CAV days before testing "
                              "(default: the task config's training_eps)")
+    add_set_flag(parser, BASELINE_SECTIONS)
     parser.add_argument("--id", default=None, help="experiment id (default: <model>_<net>_<task>_s<seed>)")
     parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing results with this id")
@@ -34,15 +34,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    overrides = None
-    if args.alg_conf:  # URB's baselines.py reads training_eps from its algo config
-        overrides = {"training_eps": load_baseline_config(args.alg_conf).config.training_eps}
     out = run_baseline(
         model=args.model, net=args.net, task_conf=args.task_conf, env_conf=args.env_conf,
         env_seed=args.env_seed, exp_id=args.id, networks_dir=args.networks_dir,
         results_dir=args.results_dir, overwrite=args.overwrite, progress=not args.no_progress,
         human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
-        task_overrides=overrides,
+        alg_conf=args.alg_conf, overrides=args.overrides,
     )
     m = out.metrics
     config = json.loads((out.folder / "exp_config.json").read_text())

@@ -19,6 +19,16 @@ def add_network_flags(parser: argparse.ArgumentParser) -> None:
                              "and name them, as URB stops on them); recorded in exp_config.json")
 
 
+def add_set_flag(parser: argparse.ArgumentParser, sections: tuple[str, ...]) -> None:
+    """--set SECTION.KEY=VALUE, repeatable: one config key without a new JSON file."""
+    parser.add_argument("--set", action="append", dest="overrides", default=None,
+                        metavar="SECTION.KEY=VALUE",
+                        help=f"override one key of the {'/'.join(sections)} config (repeatable), typed and "
+                             "checked like the file's keys, URB's key names included; VALUE is JSON "
+                             "(1e-3, 8, true, [64,64], \"text\"), a bare word is text; recorded in "
+                             "exp_config.json, e.g. --set alg.lr=1e-3 --set hybrid.num_envs=8")
+
+
 def add_networks_dir(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--networks-dir", default=None,
                         help=f"folder of URB networks (searched before ${NETWORKS_ENV} "

@@ -9,11 +9,13 @@ import argparse
 import numpy as np
 
 from urb_jax.algorithms.registry import ALGORITHMS, URB_ALIASES
-from urb_jax.commands.common import add_network_flags
+from urb_jax.commands.common import add_network_flags, add_set_flag
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.dry_run import describe, plan_train
 from urb_jax.experiment.hybrid.plan import MODES
+from urb_jax.experiment.round_log import LOGGERS
 from urb_jax.experiment.run import RunResult, resume_train, run_train
+from urb_jax.experiment.urb_configs import TRAIN_SECTIONS
 
 METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_learning", "delta_V")
 
@@ -30,6 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--env-conf", default="config1", help="env config id or .json path (default config1)")
     parser.add_argument("--hybrid-conf", default="default",
                         help="hybrid round/budget config id or path (configs/hybrid, default 'default')")
+    add_set_flag(parser, TRAIN_SECTIONS)
     parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     parser.add_argument("--seeds", default=None, type=seed_list,
                         help="comma-separated training seeds, e.g. 0,1,2 (trained together under vmap, "
@@ -48,6 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing results with this id")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--log", choices=LOGGERS, default=None,
+                        help="also log each round (rounds.csv's values) live to results/<id>/tensorboard/ "
+                             "(needs pip install 'urb-jax[tensorboard]'); --resume keeps the recorded choice")
     parser.add_argument("--executor", choices=("pool", "ray"), default=None,
                         help="where SUMO days run: pool (default; local processes) or ray (a Ray cluster, "
                              "pip install 'urb-jax[ray]'); --resume uses the recorded one unless given")
@@ -65,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
         return dry_run(args)
     if args.resume:
         outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
-                            executor_kind=args.executor, ray_address=args.ray_address)
+                            executor_kind=args.executor, ray_address=args.ray_address,
+                            overrides=args.overrides, log=args.log)
     else:
         seeds = args.seeds or [args.seed]
         outs = run_train(
@@ -74,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
             exp_id=args.id, mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
             overwrite=args.overwrite, progress=not args.no_progress, train_days=args.train_days,
             executor_kind=args.executor or "pool", ray_address=args.ray_address,
-            human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable)
+            human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
+            overrides=args.overrides, log=args.log)
     for out in outs:
         m = out.metrics
         print(f"results: {out.folder}  ({out.wall_time_s:.1f} s)")
@@ -101,7 +109,7 @@ def dry_run(args: argparse.Namespace) -> int:
         hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=args.seeds or [args.seed], exp_id=args.id,
         mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
         overwrite=args.overwrite, train_days=args.train_days, drop_unroutable=args.drop_unroutable,
-        human_phase_from=args.human_phase_from)
+        human_phase_from=args.human_phase_from, overrides=args.overrides, log=args.log)
     print("dry run: every config loaded and checked; nothing simulated, no results folder created.")
     for line in describe(plan):
         print(line)

@@ -1,6 +1,8 @@
 """Load JSON configs into typed, frozen dataclasses; unknown keys and wrong types are errors
 that name the file, the key and the fix. Shared by task/env/algo configs; a file may be written
-with URB's key names (`urb_jax.core.urb_keys`, resolved here, in `load_resolved`)."""
+with URB's key names (`urb_jax.core.urb_keys`, resolved here, in `load_resolved`). Command-line
+overrides (`--set alg.lr=1e-3`, `Override`) replace a file's key before it is resolved, so they
+are typed, aliased and validated exactly like the file's own keys."""
 
 from __future__ import annotations
 
@@ -8,7 +10,8 @@ import dataclasses
 import json
 import types
 import typing
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
@@ -97,17 +100,99 @@ class Loaded(Generic[T]):
     config: T
     path: Path
     resolution: Resolution
+    overridden: dict[str, Any] = field(default_factory=dict)  # field set by --set -> its typed value
 
 
-def load_json(cls: type[T], path: str | Path, family: Family | None = None) -> T:
-    return load_resolved(cls, path, family).config
+@dataclass(frozen=True)
+class Override:
+    """One `--set SECTION.KEY=VALUE`: VALUE read as JSON (1e-3, 8, true, null, [64, 64], "text"),
+    or as text when it is not JSON (a bare word)."""
+
+    given: str  # as typed, for errors and exp_config.json
+    section: str  # task, env, alg, hybrid
+    key: str  # urb-jax's name or URB's
+    value: Any
 
 
-def load_resolved(cls: type[T], path: str | Path, family: Family | None = None) -> Loaded[T]:
-    """`path` as `cls`, read in the dialect of URB's config `family` (None: urb-jax's names only)."""
+OVERRIDE_HELP = ('values are read as JSON (1e-3, 8, true, null, [64, 64], "text"); a bare word is text, '
+                 "so quote a text that JSON would read otherwise: 'SECTION.KEY=\"1\"'")
+
+
+def parse_overrides(items: Iterable[str], sections: Sequence[str]) -> tuple[Override, ...]:
+    """`--set` items as `Override`s; a malformed item or an unknown section is a ConfigError."""
+    out = []
+    for item in items:
+        target, sep, text = item.partition("=")
+        section, dot, key = target.strip().partition(".")
+        if not sep or not dot or not key or section not in sections:
+            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE with SECTION one of "
+                              f"{', '.join(sections)}. Fix: e.g. --set {sections[0]}.<key>=<value>.")
+        try:
+            value = json.loads(text)
+        except json.JSONDecodeError:
+            value = text
+        out.append(Override(item, section, key, value))
+    return tuple(out)
+
+
+def in_section(overrides: Iterable[Override], name: str) -> tuple[Override, ...]:
+    return tuple(o for o in overrides if o.section == name)
+
+
+def load_json(cls: type[T], path: str | Path, family: Family | None = None,
+              overrides: Sequence[Override] = ()) -> T:
+    return load_resolved(cls, path, family, overrides).config
+
+
+def load_resolved(cls: type[T], path: str | Path, family: Family | None = None,
+                  overrides: Sequence[Override] = ()) -> Loaded[T]:
+    """`path` as `cls`, read in the dialect of URB's config `family` (None: urb-jax's names only),
+    with `overrides` (one section's) replacing the file's keys before anything is resolved."""
     data = read_json(Path(path))
-    resolved, resolution = resolve(data, family, str(path))
-    return Loaded(from_dict(cls, resolved, str(path)), Path(path), resolution)
+    source = str(path)
+    if overrides:
+        data = _apply_overrides(cls, data, overrides, family, source)
+        source = f"{path} with --set {' '.join(o.given for o in overrides)}"
+    resolved, resolution = resolve(data, family, source)
+    config = from_dict(cls, resolved, source)
+    fields = {f.name for f in dataclasses.fields(cls)}
+    targets = [_target(o.key, family) for o in overrides]
+    return Loaded(config, Path(path), resolution,
+                  {t: getattr(config, t) for t in targets if t in fields})
+
+
+def _target(key: str, family: Family | None) -> str:
+    """The urb-jax field a key sets (URB's alias resolved)."""
+    return family.aliases.get(key, key) if family is not None else key
+
+
+def _apply_overrides(cls: type, data: Mapping[str, Any], overrides: Sequence[Override],
+                     family: Family | None, source: str) -> dict[str, Any]:
+    """`data` with each override's key set, after removing the file's keys that set the same
+    field under another name (ours or URB's). An override's key must be a key of the config (or
+    a URB key its family knows: refused and ignored ones are reported by `resolve`), and its
+    value of the key's type; errors name the override and the fix. A URB alias given for a file
+    in urb-jax's names sets our field directly (else the file would read as URB's, whose
+    required keys it need not have)."""
+    hints = typing.get_type_hints(cls)
+    fields = sorted(f.name for f in dataclasses.fields(cls) if f.init)
+    urb_keys = set(family.aliases) | set(family.ignored) | set(family.derived) | set(family.refused) \
+        if family is not None else set()
+    urb_file = family is not None and any(k in family.aliases for k in data)
+    out = dict(data)
+    for o in overrides:
+        target = _target(o.key, family)
+        if target not in fields and o.key not in urb_keys:
+            raise ConfigError(f"--set {o.given}: the {o.section} config ({source}) has no key '{o.key}'. "
+                              f"Fix: use one of {', '.join(fields)} (URB's names for them are accepted too).")
+        if target in fields and not _type_ok(o.value, hints[target]):
+            expected = getattr(hints[target], "__name__", hints[target])
+            raise ConfigError(f"--set {o.given}: key '{o.key}' takes {expected}, got {o.value!r} "
+                              f"({type(o.value).__name__}). Fix: give a {expected}; {OVERRIDE_HELP}.")
+        for key in [k for k in out if _target(k, family) == target]:
+            del out[key]
+        out[o.key if urb_file else target] = o.value
+    return out
 
 
 def read_json(path: Path) -> dict[str, Any]:

@@ -16,11 +16,12 @@ from typing import Any
 
 from urb_jax.algorithms.registry import algorithm, canonical
 from urb_jax.city.network import DEFAULT_NETWORK
-from urb_jax.core.configio import Loaded
+from urb_jax.core.configio import Loaded, in_section
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment.round_log import check_logger
 from urb_jax.experiment.run import TrainArgs, TrainSetup, check_runnable, load_setup
 from urb_jax.experiment.run_folder import CONFIG_FILE, ResultsExistError, check_exp_id, train_run_names
-from urb_jax.experiment.urb_configs import train_configs
+from urb_jax.experiment.urb_configs import run_overrides, train_configs
 from urb_jax.reporting.urb_names import train_names
 
 
@@ -40,13 +41,16 @@ def plan_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "co
                env_seed: int = 42, seeds: list[int] | None = None, exp_id: str | None = None,
                mode: str = "hybrid", networks_dir: str | None = None, results_dir: str = "results",
                overwrite: bool = False, train_days: int | None = None, drop_unroutable: bool = False,
-               human_phase_from: str | None = None) -> TrainPlan:
+               human_phase_from: str | None = None, overrides: list[str] | None = None,
+               log: str | None = None) -> TrainPlan:
     """What `run.run_train` with these arguments would run; raises the error it would stop on."""
+    check_logger(log)
     seeds = seeds or [0]
     args: TrainArgs = {
         "alg": canonical(alg), "net": net or DEFAULT_NETWORK, "task_conf": task_conf, "alg_conf": alg_conf,
         "env_conf": env_conf, "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode,
-        "networks_dir": networks_dir, "train_days": train_days, "drop_unroutable": drop_unroutable}
+        "networks_dir": networks_dir, "train_days": train_days, "drop_unroutable": drop_unroutable,
+        "overrides": list(overrides or [])}
     setup = load_setup(args)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=mode)
     if human_phase_from:
@@ -76,7 +80,8 @@ def _folders(args: TrainArgs, setup: TrainSetup, seeds: list[int], exp_id: str |
 
 def describe(plan: TrainPlan) -> list[str]:
     """The resolved experiment, one line each: network, agents, CAVs, algorithm, folders, every
-    config value (with the URB key it was given as) and the URB keys accepted without effect."""
+    config value (with the URB key it was given as, or the --set that set it) and the URB keys
+    accepted without effect."""
     scn, task, args = plan.setup.scn, plan.setup.task, plan.args
     n_cav = int(scn.n_agents * task.ratio_machines)
     lines = [
@@ -91,11 +96,14 @@ def describe(plan: TrainPlan) -> list[str]:
             args["alg"], args["mode"], plan.setup.hyb_path.stem, plan.setup.hyb.train_days,
             args["alg_conf"]).items()) + " (exp_config.json, read by URB's leaderboard)",
     ]
+    if args.get("overrides"):
+        lines.append(f"overrides    {' '.join('--set ' + o for o in args['overrides'])}")
     for kind, loaded in plan.configs.items():
         lines += _config_lines(kind, loaded)
     hyb = plan.setup.hyb
+    hyb_set = {o.key for o in in_section(run_overrides(args), "hybrid")}
     lines.append(f"hybrid config {plan.setup.hyb_path}")
-    lines += [f"  {k} = {v!r}" for k, v in asdict(hyb).items()]
+    lines += [f"  {k} = {v!r}{'   (--set)' if k in hyb_set else ''}" for k, v in asdict(hyb).items()]
     return lines
 
 
@@ -107,6 +115,7 @@ def _config_lines(kind: str, loaded: Loaded[Any]) -> list[str]:
     lines = [f"{kind} config{' ' * (6 - len(kind))}{loaded.path} (read as URB's {res.family})"]
     for key, value in asdict(loaded.config).items():
         note = f"   (given as URB's {' and '.join(given_as[key])})" if key in given_as else ""
+        note += "   (--set)" if key in loaded.overridden else ""
         lines.append(f"  {key} = {value!r}{note}")
     lines += [f"  URB key '{k}' = {res.given[k]!r} ignored: {why}" for k, why in res.ignored.items()]
     lines += [f"  URB key '{k}' = {res.given[k]!r} checked against {rule}" for k, rule in res.derived.items()]

@@ -23,12 +23,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from urb_jax.algorithms.baselines import CavPolicy, make_baseline
-from urb_jax.algorithms.registry import canonical, load_algo_config
+from urb_jax.algorithms.registry import canonical, load_algo_config, load_baseline_config
 from urb_jax.city.demand import scale_demand
 from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.compile_cache import enable_compile_cache
-from urb_jax.core.configio import to_dict
+from urb_jax.core.configio import in_section, to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop
 from urb_jax.core.progress import Progress
@@ -50,6 +50,7 @@ from urb_jax.experiment.human_phase import (
 from urb_jax.experiment.hybrid.plan import AlgoConfig, HybridConfig, load_hybrid_config
 from urb_jax.experiment.hybrid.trainer import Stopped, TrainSummary, train_group
 from urb_jax.experiment.protocol import DayFn, run_experiment
+from urb_jax.experiment.round_log import check_logger, round_log
 from urb_jax.experiment.run_folder import (
     CONFIG_FILE,
     check_exp_id,
@@ -63,8 +64,15 @@ from urb_jax.experiment.run_folder import (
     write_rounds,
 )
 from urb_jax.experiment.run_log import log_run_to, with_run_log
-from urb_jax.experiment.urb_configs import CONFIG_ALIASES_KEY, config_aliases
-from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
+from urb_jax.experiment.urb_configs import (
+    CONFIG_ALIASES_KEY,
+    OVERRIDES_KEY,
+    config_aliases,
+    override_record,
+    run_overrides,
+    train_override_record,
+)
+from urb_jax.game.config import EnvConfig, TaskConfig, load_env, load_env_config, load_task, load_task_config
 from urb_jax.reporting.records import RecordsWriter, remove_parts
 from urb_jax.reporting.urb_names import baseline_names, names_of, train_names
 from urb_jax.sumo_bridge import DayExecutor, DayResult, InProcessExecutor, MemoExecutor, SumoPool, run_day
@@ -100,15 +108,20 @@ class TrainSetup(NamedTuple):
 
 
 def load_setup(args: TrainArgs) -> TrainSetup:
-    task, task_path = load_task_config(args["task_conf"])
-    env, env_path = load_env_config(args["env_conf"])
-    hyb, hyb_path = load_hybrid_config(args["hybrid_conf"])
+    """The run's scenario and configs, each config with its `--set` overrides (`args["overrides"]`)."""
+    ov = run_overrides(args)
+    task, task_path = load_task_config(args["task_conf"], in_section(ov, "task"))
+    env, env_path = load_env_config(args["env_conf"], in_section(ov, "env"))
+    hyb, hyb_path = load_hybrid_config(args["hybrid_conf"], in_section(ov, "hybrid"))
     if args.get("train_days") is not None:  # 0 is a value, not "use the config's"
         if int(args["train_days"]) < 1:
             raise ConfigError(f"--train-days {args['train_days']}: a run needs at least one training day. "
                               "Fix: pass --train-days 1 or more (6000 is the paper's budget).")
+        if any(o.key == "train_days" for o in in_section(ov, "hybrid")):
+            raise ConfigError(f"--train-days {args['train_days']} and --set hybrid.train_days both set the "
+                              "training budget. Fix: give one of them.")
         hyb = dataclasses.replace(hyb, train_days=int(args["train_days"]))
-    alg_config = load_algo_config(args["alg"], args["alg_conf"])
+    alg_config = load_algo_config(args["alg"], args["alg_conf"], in_section(ov, "alg"))
     scn = _scenario(args["net"], args["networks_dir"], args["env_seed"], env, task,
                     bool(args.get("drop_unroutable", False)))  # runs before the flag: False
     return TrainSetup(scn, task, task_path, env, env_path, hyb, hyb_path, alg_config)
@@ -212,11 +225,15 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
               overwrite: bool = False, progress: bool = True, train_days: int | None = None,
               executor: DayExecutor | None = None, stop_after_round: int | None = None,
               executor_kind: str = "pool", ray_address: str | None = None,
-              human_phase_from: str | None = None, drop_unroutable: bool = False) -> list[RunResult]:
+              human_phase_from: str | None = None, drop_unroutable: bool = False,
+              overrides: list[str] | None = None, log: str | None = None) -> list[RunResult]:
     """Train every seed (sharing the human phase and the SUMO executor; groups of up to
     `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
-    `human_phase_from`: reuse that earlier train run's human phase instead of simulating it."""
+    `human_phase_from`: reuse that earlier train run's human phase instead of simulating it.
+    `overrides`: `--set SECTION.KEY=VALUE` items (recorded; a resume re-applies them). `log`:
+    "tensorboard" logs each round to results/<id>/tensorboard/ (`round_log`)."""
     enable_compile_cache()
+    check_logger(log)
     seeds = seeds or [0]
     net = net or DEFAULT_NETWORK
     task_conf, alg_conf, env_conf, hybrid_conf = map(_resolved, (task_conf, alg_conf, env_conf, hybrid_conf))
@@ -224,7 +241,7 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
         "alg": canonical(alg), "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
         "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode, "networks_dir": networks_dir,
         "train_days": train_days, "executor": executor_kind, "ray_address": ray_address,
-        "drop_unroutable": drop_unroutable}
+        "drop_unroutable": drop_unroutable, "overrides": list(overrides or []), "log": log}
     t0 = time.perf_counter()
     setup = load_setup(args)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=mode)
@@ -279,10 +296,13 @@ def _seed_configs(config: dict[str, Any], args: TrainArgs, seeds: list[int], fol
 @with_run_log
 def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
                  executor: DayExecutor | None = None, executor_kind: str | None = None,
-                 ray_address: str | None = None) -> list[RunResult]:
+                 ray_address: str | None = None, overrides: list[str] | None = None,
+                 log: str | None = None) -> list[RunResult]:
     """Continue results/<exp_id>/ (and the seeds trained together with it) from the group's newest
     checkpoint, with the recorded arguments (and the recorded SUMO executor unless `executor_kind`
-    overrides it); one result per seed of the group."""
+    overrides it); one result per seed of the group. The recorded `--set` overrides are
+    re-applied; `overrides` given here must be the same ones (`check_resume_overrides`). `log`:
+    the round logger (default: the recorded one)."""
     enable_compile_cache()
     folder = Path(results_dir) / check_exp_id(exp_id)
     if not (folder / CONFIG_FILE).is_file():
@@ -302,6 +322,10 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
             remove_parts(f)  # a kill after the last exp_config write left them
         raise UrbJaxError(f"{folder}: this run is already complete.")
     args: TrainArgs = configs[0]["train_args"]
+    check_resume_overrides(folder, args, overrides)
+    if log is not None:
+        args = {**args, "log": log}
+    check_logger(args.get("log"))
     seeds = [c["train_args"]["seed"] for c in configs]
     setup = load_setup(args)
     with _stops_cleanly(folders), \
@@ -319,6 +343,22 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
         c["resumed"] = c.get("resumed", 0) + 1
     walls = [wall + c.get("wall_time_s", 0.0) for c in configs]  # the killed runs' time included
     return _finish_group(folders, configs, result, setup.task, walls)
+
+
+def check_resume_overrides(folder: Path, args: TrainArgs, given: list[str] | None) -> None:
+    """A resume re-applies the run's recorded --set items; different ones would change the run's
+    configs half-way, so they are refused (the same ones, however spelled, are accepted)."""
+    if not given:
+        return
+    recorded = args.get("overrides") or []
+    same = [(o.section, o.key, o.value) for o in run_overrides({"overrides": given})] == \
+        [(o.section, o.key, o.value) for o in run_overrides(args)]
+    if not same:
+        was = " ".join(f"--set {g}" for g in recorded) or "no --set"
+        raise UrbJaxError(f"{folder}: --resume continues the run with the configs it started with ({was}, "
+                          "re-applied on resume); --set " + " --set ".join(given) + " would change them "
+                          "half-way. Fix: drop --set (the recorded overrides are re-applied), or start a new "
+                          "run with another --id.")
 
 
 def _human_phase_again(setup: TrainSetup, args: TrainArgs, config: dict[str, Any], results_dir: Path,
@@ -348,6 +388,7 @@ def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | No
         SURROGATE_KEY: surrogate_human_days(hyb, task.human_learning_episodes, args["mode"] != "sumo"),
         **_dropped(scn, bool(args.get("drop_unroutable", False))),
         CONFIG_ALIASES_KEY: config_aliases(args),  # URB key names given, and what they set
+        OVERRIDES_KEY: train_override_record(args),  # --set items as given and the values they set
     }
 
 
@@ -391,10 +432,11 @@ def _train_groups(setup: TrainSetup, args: TrainArgs, configs: dict[int, dict[st
 def _train(setup: TrainSetup, args: TrainArgs, seeds: list[int], folders: list[Path], executor: DayExecutor,
            human: HumanPhase | None, progress: bool, stop_after_round: int | None
            ) -> list[TrainSummary] | Stopped:
-    return train_group(scn=setup.scn, task=setup.task, env_cfg=setup.env, alg=args["alg"],
-                       alg_config=setup.alg_config, cfg=setup.hyb, mode=args["mode"], seeds=seeds,
-                       env_seed=args["env_seed"], folders=folders, executor=executor, human=human,
-                       progress=progress, stop_after_round=stop_after_round)
+    with round_log(folders, args.get("log"), resumed=human is None) as on_round:
+        return train_group(scn=setup.scn, task=setup.task, env_cfg=setup.env, alg=args["alg"],
+                           alg_config=setup.alg_config, cfg=setup.hyb, mode=args["mode"], seeds=seeds,
+                           env_seed=args["env_seed"], folders=folders, executor=executor, human=human,
+                           progress=progress, stop_after_round=stop_after_round, on_round=on_round)
 
 
 def _finish_group(folders: list[Path], configs: list[dict[str, Any]], result: list[TrainSummary] | Stopped,
@@ -431,15 +473,18 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
                  networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
                  progress: bool = True, day_fn: DayFn | None = None,
                  task_overrides: dict[str, Any] | None = None, human_phase_from: str | None = None,
-                 drop_unroutable: bool = False) -> RunResult:
+                 drop_unroutable: bool = False, alg_conf: str | None = None,
+                 overrides: list[str] | None = None) -> RunResult:
     """One baseline experiment in results/<exp_id>/ (`human_phase_from`: days 1..H replayed from
-    that run's records instead of simulated)."""
+    that run's records instead of simulated; `alg_conf`: URB's baseline algo config, whose
+    training_eps sets the CAV days; `overrides`: --set items of the task, env and alg configs)."""
     enable_compile_cache()
     net = net or DEFAULT_NETWORK
-    task, task_path = load_task_config(task_conf)
+    loaded, task_overrides = _baseline_configs(task_conf, env_conf, alg_conf, overrides, task_overrides)
+    task, task_path = loaded["task"].config, loaded["task"].path
     if task_overrides:
         task = dataclasses.replace(task, **task_overrides)
-    env, env_path = load_env_config(env_conf)
+    env, env_path = loaded["env"].config, loaded["env"].path
     policy = make_baseline(model)
     check_runnable(task, task_path, 0, train=False)
     exp_id = exp_id or f"{model}_{Path(net).name}_{task_path.stem}_s{env_seed}"
@@ -447,6 +492,7 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     scn = _scenario(net, networks_dir, env_seed, env, task, drop_unroutable)  # a network error: no folder
     config = _baseline_config(scn, task, task_path, env, env_path, env_seed, model, human_phase_from,
                               drop_unroutable)
+    config[OVERRIDES_KEY] = override_record(overrides, loaded)
     if human_phase_from:  # a source that cannot be replayed: no folder either
         check_replayable(Path(results_dir) / human_phase_from, config, task.human_learning_episodes)
     folder = create_results_dir(results_dir, exp_id, overwrite)
@@ -455,6 +501,30 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     with _stops_cleanly([folder], resumable=False):
         return _run_baseline_days(folder, config, scn, task, env, policy, env_seed, day_fn, results_dir,
                                   human_phase_from, progress, t0)
+
+
+BASELINE_SECTIONS = ("task", "env", "alg")  # --set SECTION.KEY=VALUE of `urb-jax baseline`
+
+
+def _baseline_configs(task_conf: str, env_conf: str, alg_conf: str | None, overrides: list[str] | None,
+                      task_overrides: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A baseline's task, env and (with `alg_conf`) baseline algo configs with their --set items,
+    and the task keys the algo config sets (URB's baselines.py reads training_eps from it)."""
+    ov = run_overrides({"overrides": overrides}, BASELINE_SECTIONS)
+    loaded: dict[str, Any] = {"task": load_task(task_conf, in_section(ov, "task")),
+                              "env": load_env(env_conf, in_section(ov, "env"))}
+    task_overrides = dict(task_overrides or {})
+    if alg_conf is None and in_section(ov, "alg"):
+        raise ConfigError(f"--set {in_section(ov, 'alg')[0].given}: a baseline reads an algorithm config "
+                          "only with --alg-conf (URB's baseline config: training_eps). Fix: --set "
+                          "task.training_eps=N, or pass --alg-conf.")
+    if alg_conf is not None:
+        if any(o.key == "training_eps" for o in in_section(ov, "task")):
+            raise ConfigError("--set task.training_eps and --alg-conf both set the CAV training days (URB's "
+                              "baselines read them from the algo config). Fix: --set alg.training_eps=N.")
+        loaded["alg"] = load_baseline_config(alg_conf, in_section(ov, "alg"))
+        task_overrides["training_eps"] = loaded["alg"].config.training_eps
+    return loaded, task_overrides
 
 
 def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task: TaskConfig,

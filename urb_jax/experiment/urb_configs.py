@@ -2,27 +2,54 @@
 
 A train run writes `config_aliases` into exp_config.json (task, env and algorithm config: each
 file's URB aliases as given and as resolved, and the URB keys accepted without effect), so a run
-started from URB's own files says exactly how urb-jax read them. `load_urb_file` reads any file
-of URB's config/ folders as urb-jax would (tests and benchmarks/urb_configs.py).
+started from URB's own files says exactly how urb-jax read them; and `overrides`, its `--set`
+items as given and the typed value each set (`run_overrides`, `override_record`). `load_urb_file`
+reads any file of URB's config/ folders as urb-jax would (tests and benchmarks/urb_configs.py).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from urb_jax.algorithms.registry import load_algo, load_urb_algo
-from urb_jax.core.configio import Loaded
+from urb_jax.core.configio import Loaded, Override, in_section, parse_overrides
 from urb_jax.core.errors import ConfigError
+from urb_jax.experiment.hybrid.plan import load_hybrid
 from urb_jax.game.config import load_env, load_task
 
 CONFIG_ALIASES_KEY = "config_aliases"
+OVERRIDES_KEY = "overrides"
+TRAIN_SECTIONS = ("task", "env", "alg", "hybrid")  # --set SECTION.KEY=VALUE of `urb-jax train`
+
+
+def run_overrides(args: Mapping[str, Any], sections: tuple[str, ...] = TRAIN_SECTIONS
+                  ) -> tuple[Override, ...]:
+    """A run's --set items (`args["overrides"]`, as given; absent in runs before them), parsed."""
+    return parse_overrides(args.get("overrides") or (), sections)
 
 
 def train_configs(args: dict[str, Any]) -> dict[str, Loaded[Any]]:
     """The task, env and algorithm configs of a train run's arguments (`run.TrainArgs`)."""
-    return {"task": load_task(args["task_conf"]), "env": load_env(args["env_conf"]),
-            "alg": load_algo(args["alg"], args["alg_conf"])}
+    ov = run_overrides(args)
+    return {"task": load_task(args["task_conf"], in_section(ov, "task")),
+            "env": load_env(args["env_conf"], in_section(ov, "env")),
+            "alg": load_algo(args["alg"], args["alg_conf"], in_section(ov, "alg"))}
+
+
+def override_record(given: list[str] | None, loaded: Mapping[str, Loaded[Any]]) -> dict[str, Any]:
+    """exp_config.json's `overrides`: the --set items as given, and per config the field each set
+    with its typed value (URB's key names resolved)."""
+    return {"given": list(given or []),
+            "resolved": {kind: dict(lo.overridden) for kind, lo in loaded.items() if lo.overridden}}
+
+
+def train_override_record(args: dict[str, Any]) -> dict[str, Any]:
+    """`override_record` of a train run (task, env, algorithm and hybrid configs)."""
+    loaded = {**train_configs(args), "hybrid": load_hybrid(args["hybrid_conf"],
+                                                           in_section(run_overrides(args), "hybrid"))}
+    return override_record(args.get("overrides"), loaded)
 
 
 def config_aliases(args: dict[str, Any]) -> dict[str, Any]:

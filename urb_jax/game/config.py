@@ -8,12 +8,13 @@ file and key (`urb_jax.core.configio`); URB features we lack are refused by name
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from urb_jax.city.routes import RouteParams
-from urb_jax.core.configio import Loaded, find_config, from_dict, load_resolved
+from urb_jax.core.configio import Loaded, Override, find_config, from_dict, load_resolved
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.urb_keys import ENV_FAMILY, TASK_FAMILY
 from urb_jax.game.humans import HumanParams
@@ -137,24 +138,26 @@ class ExperimentConfig:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-def load_task_config(name_or_path: str) -> tuple[TaskConfig, Path]:
-    loaded = load_task(name_or_path)
+def load_task_config(name_or_path: str, overrides: Sequence[Override] = ()) -> tuple[TaskConfig, Path]:
+    loaded = load_task(name_or_path, overrides)
     return loaded.config, loaded.path
 
 
-def load_env_config(name_or_path: str) -> tuple[EnvConfig, Path]:
-    loaded = load_env(name_or_path)
+def load_env_config(name_or_path: str, overrides: Sequence[Override] = ()) -> tuple[EnvConfig, Path]:
+    loaded = load_env(name_or_path, overrides)
     return loaded.config, loaded.path
 
 
-def load_task(name_or_path: str) -> Loaded[TaskConfig]:
-    """A task config by id or path, in urb-jax's or URB's key names, with its resolution."""
-    return load_resolved(TaskConfig, find_config("task", name_or_path), TASK_FAMILY)
+def load_task(name_or_path: str, overrides: Sequence[Override] = ()) -> Loaded[TaskConfig]:
+    """A task config by id or path, in urb-jax's or URB's key names (`overrides`: its --set
+    items), with its resolution."""
+    return load_resolved(TaskConfig, find_config("task", name_or_path), TASK_FAMILY, overrides)
 
 
-def load_env(name_or_path: str) -> Loaded[EnvConfig]:
-    """An env config by id or path, in urb-jax's or URB's key names, with its resolution."""
-    return load_resolved(EnvConfig, find_config("env", name_or_path), ENV_FAMILY)
+def load_env(name_or_path: str, overrides: Sequence[Override] = ()) -> Loaded[EnvConfig]:
+    """An env config by id or path, in urb-jax's or URB's key names (`overrides`: its --set
+    items), with its resolution."""
+    return load_resolved(EnvConfig, find_config("env", name_or_path), ENV_FAMILY, overrides)
 
 
 def task_from_dict(data: dict[str, Any], source: str = "<dict>") -> TaskConfig:

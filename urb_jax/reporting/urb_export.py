@@ -26,11 +26,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from urb_jax import __version__
 from urb_jax.city.routes_io import write_routes_csv
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.atomic import umask
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.version import __version__
 from urb_jax.reporting.day_export import run_config, scenario_of_run
 from urb_jax.reporting.metrics import day_stats
 from urb_jax.reporting.records import read_records

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -11,7 +12,7 @@ from typing import Any, NamedTuple
 from urb_jax.algorithms.configs import IPPOStarConfig, IQLConfig, IQLStarConfig, MixerConfig, PPOConfig
 from urb_jax.algorithms.learner import Learner
 from urb_jax.algorithms.registry import algorithm
-from urb_jax.core.configio import find_config, load_json
+from urb_jax.core.configio import Loaded, Override, find_config, load_resolved
 from urb_jax.core.errors import ConfigError
 from urb_jax.game.env import RoutingEnv
 
@@ -67,9 +68,15 @@ class HybridConfig:
         return self.route_bias_prior_days if self.route_bias else None
 
 
-def load_hybrid_config(name: str = "default") -> tuple[HybridConfig, Path]:
-    path = find_config("hybrid", name)
-    return load_json(HybridConfig, path), path
+def load_hybrid_config(name: str = "default", overrides: Sequence[Override] = ()
+                       ) -> tuple[HybridConfig, Path]:
+    loaded = load_hybrid(name, overrides)
+    return loaded.config, loaded.path
+
+
+def load_hybrid(name: str = "default", overrides: Sequence[Override] = ()) -> Loaded[HybridConfig]:
+    """configs/hybrid/<name>.json (or a path) with its --set items."""
+    return load_resolved(HybridConfig, find_config("hybrid", name), None, overrides)
 
 
 class RoundPlan(NamedTuple):

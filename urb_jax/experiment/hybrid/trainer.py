@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -262,6 +262,8 @@ class HybridTrainer:
         for i, row in enumerate(rows):
             row |= {"surrogate_days": days, "surrogate_s": dt,
                     "sur_time_cav": float(m["time_cav"][i]), "sur_time_hdv": float(m["time_human"][i])}
+            if "loss" in m:  # the learner's training loss, mean over the round's updates
+                row["sur_loss"] = float(m["loss"][i])
             if "population_time_human" in m:
                 row |= {"population_time_cav": float(m["population_time_cav"][i]),
                         "population_time_hdv": float(m["population_time_human"][i])}
@@ -274,7 +276,7 @@ class HybridTrainer:
         then (mode hybrid) the refit."""
         g = self.g
         t0 = time.perf_counter()
-        choices, results, times, days = self.play_sumo_days(k_act, k_step, k_upd)
+        choices, results, times, days, loss = self.play_sumo_days(k_act, k_step, k_upd)
         pred = np.asarray(g.fns.predict_days(self.state.params, jnp.asarray(choices)))  # before the refit
         for i in range(g.S):
             res_i = results[i * g.P:(i + 1) * g.P]
@@ -288,14 +290,17 @@ class HybridTrainer:
         dt = time.perf_counter() - t0
         for i, row in enumerate(rows):
             row |= sumo_row(times[i], pred[i], g.P, dt, g.is_cav, g.cav_index)
+            if loss is not None:  # the loss of the updates on these SUMO days
+                row["sumo_loss"] = float(loss[i])
         self.bar.update(g.S * g.P, self.tag + "train/SUMO", sumo_days_s=g.S * g.P / dt,
                         sumo_tCAV=float(np.mean([row["sumo_time_cav"] for row in rows])),
                         sumo_tHDV=float(np.mean([row["sumo_time_hdv"] for row in rows])))
 
     def play_sumo_days(self, k_act: jax.Array, k_step: jax.Array, k_upd: jax.Array
-                       ) -> tuple[np.ndarray, list[DayResult], np.ndarray, Day]:
-        """(choices [S, P, N], SUMO results [S * P] seed-major, times [S, P, N], days [S, 1, P, ...]):
-        the real humans advance by SUMO's times, then `sumo_updates` updates. Frozen humans: the
+                       ) -> tuple[np.ndarray, list[DayResult], np.ndarray, Day, np.ndarray | None]:
+        """(choices [S, P, N], SUMO results [S * P] seed-major, times [S, P, N], days [S, 1, P, ...],
+        the updates' mean loss [S] or None): the real humans advance by SUMO's times, then
+        `sumo_updates` updates. Frozen humans: the
         S x P days go to the executor as one batch; adapting humans: the population lives the P
         days in order, S days (one per seed) at a time."""
         g, s = self.g, self.state
@@ -315,11 +320,13 @@ class HybridTrainer:
         results = [res for i in range(g.S) for p in parts for res in p[1][i * R:(i + 1) * R]]
         times = np.concatenate([p[2] for p in parts], axis=1)
         days = jax.tree_util.tree_map(lambda *x: jnp.concatenate(x, axis=2), *[p[3] for p in parts])
-        runner = s.runner
+        runner, losses = s.runner, []
         for u in range(g.cfg.sumo_updates):
-            runner, _ = g.fns.update(runner, days, jax.vmap(lambda k, u=u: jax.random.fold_in(k, u))(k_upd))
+            runner, m = g.fns.update(runner, days, jax.vmap(lambda k, u=u: jax.random.fold_in(k, u))(k_upd))
+            if "loss" in m:
+                losses.append(np.asarray(m["loss"]).reshape(g.S, -1).mean(1))
         self.state = s._replace(runner=runner, real=real)
-        return choices, results, times, days
+        return choices, results, times, days, np.mean(losses, axis=0) if losses else None
 
     def refit(self, r: int) -> None:
         """Each seed refits its surrogate on `refit_days` of its SUMO days (a fixed-size sample drawn
@@ -391,7 +398,7 @@ def train_group(
     *, scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, alg_config: AlgoConfig,
     cfg: HybridConfig, mode: str, seeds: list[int], env_seed: int, folders: list[Path],
     executor: DayExecutor, human: HumanPhase | None, progress: bool = True,
-    stop_after_round: int | None = None,
+    stop_after_round: int | None = None, on_round: Callable[[list[Row]], None] | None = None,
 ) -> list[TrainSummary] | Stopped:
     """Train S seeds together, seed s in `folders[s]` (fresh when `human` is given, else resumed from
     the group checkpoint in `folders[0]`); returns one summary per seed.
@@ -399,7 +406,9 @@ def train_group(
     Every learner function is vmapped over a leading seed axis (runner [S], real humans [S, P],
     surrogate parameters [S]); each round's S x P SUMO days go to the executor in one batch, and
     the test days likewise. Each seed refits its own surrogate on its own SUMO days (a loop over
-    seeds outside the jitted training). `stop_after_round` simulates a kill (tests)."""
+    seeds outside the jitted training). `stop_after_round` simulates a kill (tests). `on_round`
+    gets each round's rounds.csv rows (one per seed) once it is checkpointed; a resumed group
+    passes it the restored rounds first, so it sees every round in order (e.g. TensorBoard)."""
     g = setup_group(scn, task, env_cfg, alg, alg_config, cfg, mode, seeds, env_seed, folders,
                     human.humans if human is not None else None)
     writers = [RecordsWriter(f, scn.agent_id, scn.agent_od, scn.agent_depart, flush_every=10**9)
@@ -410,8 +419,13 @@ def train_group(
     trainer = HybridTrainer(g, executor, writers, bar)
     start = trainer.start(human) if human is not None else trainer.resume()
     bar.update(g.S * (g.H + start * per_round), trainer.tag + ("resume" if human is None else "human"))
+    if on_round is not None:  # a resumed group's restored rounds first
+        for r in range(start):
+            on_round([log[r] for log in trainer.rounds_logs])
     for r in range(start, plan.n_rounds):
         trainer.run_round(r)
+        if on_round is not None:
+            on_round([log[r] for log in trainer.rounds_logs])
         bar.milestone()  # a line per round, even with --no-progress
         if stop_after_round is not None and r + 1 >= stop_after_round:
             bar.close()
