@@ -107,6 +107,25 @@ class HumanPolicy:
         return new, params
 
 
+@dataclass(frozen=True)
+class FixedPolicy(_FixedRule):
+    """A frozen policy trained outside urb-jax (JaxMARL, PyTorch via a callback, a rule) as a
+    `CavPolicy`: `policy(key, obs [n, D], idx [n] | None) -> routes [n]` sees the env's own
+    observations of the CAVs `idx` (rows of the CAV axis; None: all) and acts in departure order,
+    as urb-jax's learners do (`game.rollout.act_by_levels`: it must be traceable by JAX)."""
+
+    policy: Policy
+    name: str = "outside"
+    uses_observation: bool = True
+
+    def init(self, key: jax.Array, env: RoutingEnv) -> None:
+        return None
+
+    def act(self, key: jax.Array, state: None, obs: jnp.ndarray, idx: jnp.ndarray | None = None
+            ) -> jnp.ndarray:
+        return self.policy(key, obs, idx)
+
+
 BASELINES: dict[str, type[CavPolicy]] = {"aon": AonPolicy, "random": RandomPolicy, "human": HumanPolicy}
 
 

@@ -47,8 +47,9 @@ from urb_jax.reporting.metrics import PRE_WINDOW
 from urb_jax.reporting.records import DayRecord, read_records
 from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, MemoExecutor
 from urb_jax.surrogate import build_static, init_params, predict
-from urb_jax.surrogate.calibrate import FitConfig, SumoSample, fit_with_bias
+from urb_jax.surrogate.calibrate import FitConfig, Params, SumoSample, fit_with_bias
 from urb_jax.surrogate.data import make_choices
+from urb_jax.surrogate.model import Static
 
 HUMAN_FILE = "human_phase.npz"
 JOURNAL_DIR = "human_days.journal"  # in the run's first folder
@@ -120,6 +121,19 @@ def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor
     return HumanPhase(humans, records, np.stack(choices).astype(np.int32),
                       np.stack([r.travel_time for r in results]).astype(np.float32),
                       np.stack([r.status == ARRIVED for r in results]), S, switch, means)
+
+
+def uncalibrated(static: Static) -> Params:
+    """The surrogate before calibration: textbook parameters, no route bias (the trainer's start)."""
+    return {**init_params(static), "route_bias": jnp.zeros((static.n, static.k), jnp.float32)}
+
+
+def calibrate(start: Params, static: Static, human: HumanPhase, cfg: HybridConfig) -> Params:
+    """The surrogate fitted to the human phase's calibration days (`calib_steps` steps from `start`,
+    then the route bias on the same days): what the hybrid trainer's round 0 trains on, and what an
+    env for a policy trained outside urb-jax simulates (`urb_jax.experiment.outside`)."""
+    sample = SumoSample(human.calib_choices, human.calib_times, human.calib_arrived)
+    return fit_with_bias(start, static, sample, FitConfig(steps=cfg.calib_steps), sample, cfg.bias_prior)
 
 
 def _varied_days(scn: Scenario, cfg: HybridConfig, executor: DayExecutor, env_seed: int, bar: Progress

@@ -15,7 +15,7 @@ import functools
 import json
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -478,6 +478,42 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     """One baseline experiment in results/<exp_id>/ (`human_phase_from`: days 1..H replayed from
     that run's records instead of simulated; `alg_conf`: URB's baseline algo config, whose
     training_eps sets the CAV days; `overrides`: --set items of the task, env and alg configs)."""
+    return _run_policy(make_baseline(model), lambda task: baseline_names(model, task.training_eps),
+                       net=net, task_conf=task_conf, env_conf=env_conf, env_seed=env_seed, exp_id=exp_id,
+                       id_prefix=model, networks_dir=networks_dir, results_dir=results_dir,
+                       overwrite=overwrite, progress=progress, day_fn=day_fn, task_overrides=task_overrides,
+                       human_phase_from=human_phase_from, drop_unroutable=drop_unroutable, alg_conf=alg_conf,
+                       overrides=overrides)
+
+
+@with_run_log
+def run_policy(policy: CavPolicy, *, exp_id: str | None = None, net: str | None = None,
+               task_conf: str = "config1", env_conf: str = "config1", env_seed: int = 42,
+               networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
+               progress: bool = True, day_fn: DayFn | None = None,
+               task_overrides: dict[str, Any] | None = None, human_phase_from: str | None = None,
+               drop_unroutable: bool = False) -> RunResult:
+    """URB's experiment in SUMO with any `CavPolicy` (e.g. `algorithms.baselines.FixedPolicy` around
+    a policy trained outside urb-jax), in results/<exp_id>/ with the metric files of every run.
+    A policy trained elsewhere needs no SUMO training days: task_overrides={"training_eps": 0} runs
+    the human phase (or replays it, `human_phase_from`) and the test days only."""
+    labels = {"alg_config": "outside", "algorithm": policy.name,
+              "script": "urb_jax.experiment.run.run_policy"}
+    return _run_policy(policy, lambda _task: labels, net=net, task_conf=task_conf, env_conf=env_conf,
+                       env_seed=env_seed, exp_id=exp_id, id_prefix=policy.name, networks_dir=networks_dir,
+                       results_dir=results_dir, overwrite=overwrite, progress=progress, day_fn=day_fn,
+                       task_overrides=task_overrides, human_phase_from=human_phase_from,
+                       drop_unroutable=drop_unroutable)
+
+
+def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, Any]], *, net: str | None,
+                task_conf: str, env_conf: str, env_seed: int, exp_id: str | None, id_prefix: str,
+                networks_dir: str | None, results_dir: str, overwrite: bool, progress: bool,
+                day_fn: DayFn | None, task_overrides: dict[str, Any] | None, human_phase_from: str | None,
+                drop_unroutable: bool, alg_conf: str | None = None,
+                overrides: list[str] | None = None) -> RunResult:
+    """Every day in SUMO with `policy`; `labels_of(task)`: what exp_config.json calls the policy; the
+    default id is `id_prefix`_<network>_<task>_s<env seed>."""
     enable_compile_cache()
     net = net or DEFAULT_NETWORK
     loaded, task_overrides = _baseline_configs(task_conf, env_conf, alg_conf, overrides, task_overrides)
@@ -485,13 +521,12 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
     if task_overrides:
         task = dataclasses.replace(task, **task_overrides)
     env, env_path = loaded["env"].config, loaded["env"].path
-    policy = make_baseline(model)
     check_runnable(task, task_path, 0, train=False)
-    exp_id = exp_id or f"{model}_{Path(net).name}_{task_path.stem}_s{env_seed}"
+    exp_id = exp_id or f"{id_prefix}_{Path(net).name}_{task_path.stem}_s{env_seed}"
     t0 = time.perf_counter()
     scn = _scenario(net, networks_dir, env_seed, env, task, drop_unroutable)  # a network error: no folder
-    config = _baseline_config(scn, task, task_path, env, env_path, env_seed, model, human_phase_from,
-                              drop_unroutable)
+    config = _baseline_config(scn, task, task_path, env, env_path, env_seed, labels_of(task),
+                              human_phase_from, drop_unroutable)
     config[OVERRIDES_KEY] = override_record(overrides, loaded)
     if human_phase_from:  # a source that cannot be replayed: no folder either
         check_replayable(Path(results_dir) / human_phase_from, config, task.human_learning_episodes)
@@ -575,13 +610,12 @@ def _one_day(executor: DayExecutor) -> DayFn:
 
 
 def _baseline_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvConfig, env_path: Path,
-                     env_seed: int, model: str, human_phase_from: str | None,
+                     env_seed: int, labels: dict[str, str], human_phase_from: str | None,
                      drop_unroutable: bool) -> dict[str, Any]:
     return {
         **to_dict(env), **to_dict(task),
         "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed,
-        "env_config": env_path.stem, "task_config": task_path.stem,
-        **baseline_names(model, task.training_eps),
+        "env_config": env_path.stem, "task_config": task_path.stem, **labels,
         "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
         "exp_type": "normal", "human_days": task.human_learning_episodes, "training_days": task.training_eps,
         "versions": versions(), "urb_jax_version": __version__, "command": sys.argv,

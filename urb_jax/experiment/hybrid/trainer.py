@@ -24,7 +24,7 @@ from urb_jax.city.scenario import Scenario
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import RoundMeta, restore_round, save_round
-from urb_jax.experiment.human_phase import HumanPhase
+from urb_jax.experiment.human_phase import HumanPhase, calibrate, uncalibrated
 from urb_jax.experiment.hybrid.clock import IterationClock
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns
 from urb_jax.experiment.hybrid.plan import (
@@ -43,7 +43,7 @@ from urb_jax.game.mutation import draw_cavs
 from urb_jax.reporting.records import DayRecord, RecordsWriter
 from urb_jax.sumo_bridge import DayExecutor, DayResult
 from urb_jax.sumo_bridge.memo import MemoExecutor
-from urb_jax.surrogate import SumoSample, build_static, init_params, predict
+from urb_jax.surrogate import SumoSample, build_static, predict
 from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias
 from urb_jax.surrogate.model import Static
 
@@ -130,17 +130,11 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     hp = task.human_params()
     is_cav = draw_cavs(env_seed, n, task.ratio_machines, agent_id=scn.agent_id)
     static = build_static(scn)
-
-    def sur_fn(params: Params, choices: jnp.ndarray) -> jnp.ndarray:
-        return predict(params, static, choices)
-
-    env_kwargs = dict(human_params=hp, reward_coefficients=task.reward_coefficients,
-                      observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt,
-                      reward_credit=task.reward_credit)
-    p0 = {**init_params(static), "route_bias": jnp.zeros((n, scn.k), jnp.float32)}
+    env_kwargs = routing_env_kwargs(task, env_cfg)
+    p0 = uncalibrated(static)
     if humans is None:  # shapes only: the checkpoint overwrites it
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid), hp)
-    env = RoutingEnv(scn, is_cav, sur_fn, human_init=humans, default_params=p0, **env_kwargs)
+    env = surrogate_env(scn, is_cav, static, humans, p0, env_kwargs)
     probe, _ = learner_for(alg, alg_config, env, cfg, 1, mode)
     plan = plan_rounds(cfg, mode, probe.days_per_iter)
     learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
@@ -160,6 +154,22 @@ def _slow_hint(alg: str) -> str:
         return (f"URB's TorchRL configs are update-bound on a CPU (their update count grows with the "
                 f"data): `--alg-conf hybrid` trains {alg} sized for the hybrid budget (docs/algorithms.md)")
     return "Fewer --train-days, a smaller config or a GPU would shorten it"
+
+
+def routing_env_kwargs(task: TaskConfig, env_cfg: EnvConfig) -> dict[str, Any]:
+    """`RoutingEnv` keywords from the task and env configs (the same for surrogate and SUMO days)."""
+    return dict(human_params=task.human_params(), reward_coefficients=task.reward_coefficients,
+                observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt,
+                reward_credit=task.reward_credit)
+
+
+def surrogate_env(scn: Scenario, is_cav: np.ndarray, static: Static, humans: HumanState, params: Params,
+                  env_kwargs: dict[str, Any]) -> RoutingEnv:
+    """The env whose days the surrogate simulates under `params` (its default_params)."""
+    def sur_fn(p: Params, choices: jnp.ndarray) -> jnp.ndarray:
+        return predict(p, static, choices)
+
+    return RoutingEnv(scn, is_cav, sur_fn, human_init=humans, default_params=params, **env_kwargs)
 
 
 class HybridTrainer:
@@ -193,8 +203,7 @@ class HybridTrainer:
                 writer.add(rec)
         sample0 = SumoSample(human.calib_choices, human.calib_times, human.calib_arrived)
         if g.mode != "sumo" and len(sample0):
-            fitted = self.fit(g.p0, sample0, FitConfig(steps=g.cfg.calib_steps), sample0)
-            state = state._replace(params=_stack([fitted] * g.S))
+            state = state._replace(params=_stack([calibrate(g.p0, g.static, human, g.cfg)] * g.S))
         real = state.real._replace(humans=jax.tree_util.tree_map(
             lambda x: jnp.broadcast_to(x, (g.S, g.R, *x.shape)), human.humans))
         self.state = state._replace(real=real)

@@ -1,0 +1,85 @@
+"""Policies trained outside urb-jax: the surrogate env they train on, and their SUMO test days.
+
+A finished `urb-jax train` run holds everything such a policy needs and nothing it should pay for
+again: the network, configs and env seed (`exp_config.json`), the human phase's SUMO days and
+learned humans, and the calibration days (`human_phase.npz`). `surrogate_env_from_run` rebuilds the
+run's surrogate env at round 0 (the human phase replayed from the records, the surrogate
+calibrated as the trainer calibrates it) without a SUMO day; `evaluate_on_sumo` plays the frozen
+policy on URB's test days in SUMO after the same human phase (replayed, not re-simulated) and
+writes the usual results folder and metric files (t_CAV, t_pre, ...).
+
+The JaxMARL interface over the env lives in `urb_jax.experiment.jaxmarl_env` (optional extra).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from urb_jax.algorithms.baselines import FixedPolicy
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment.human_phase import HumanPhase, calibrate, reuse_human_phase, uncalibrated
+from urb_jax.experiment.hybrid.trainer import routing_env_kwargs, surrogate_env
+from urb_jax.experiment.run import RunResult, TrainSetup, load_setup, run_policy
+from urb_jax.experiment.run_folder import CONFIG_FILE
+from urb_jax.game.env import RoutingEnv
+from urb_jax.game.mutation import draw_cavs
+from urb_jax.game.rollout import Policy
+from urb_jax.surrogate import build_static
+
+
+class RunEnv(NamedTuple):
+    """A finished run's surrogate env (its calibrated surrogate as `env.default_params`)."""
+
+    env: RoutingEnv
+    setup: TrainSetup
+    human: HumanPhase
+    source: Path
+
+
+def _train_config(run: str | Path) -> tuple[Path, dict[str, Any]]:
+    folder = Path(run).expanduser().resolve()
+    path = folder / CONFIG_FILE
+    if not path.is_file():
+        raise UrbJaxError(f"{path}: not found. Fix: pass the folder of a finished `urb-jax train` run "
+                          "(results/<id>/).")
+    config = json.loads(path.read_text())
+    if "train_args" not in config:
+        raise UrbJaxError(f"{path}: not a `urb-jax train` run (no 'train_args'). Fix: pass the folder of a "
+                          "train run; baseline runs keep no calibration days.")
+    return folder, config
+
+
+def surrogate_env_from_run(run: str | Path) -> RunEnv:
+    """The surrogate env of `run` at round 0: its scenario, CAVs, trained humans and the surrogate
+    calibrated on its human phase's calibration days (no SUMO day is run)."""
+    folder, config = _train_config(run)
+    setup = load_setup(config["train_args"])
+    env_seed = int(config["env_seed"])
+    human = reuse_human_phase(folder, config, setup.scn, setup.task, setup.hyb, env_seed, calibrate=True)
+    if not len(human.calib_choices):
+        raise UrbJaxError(f"{folder}: the run recorded no calibration days (--mode sumo). Fix: use a hybrid "
+                          "or surrogate run.")
+    static = build_static(setup.scn)
+    params = calibrate(uncalibrated(static), static, human, setup.hyb)
+    is_cav = draw_cavs(env_seed, setup.scn.n_agents, setup.task.ratio_machines, agent_id=setup.scn.agent_id)
+    kwargs = routing_env_kwargs(setup.task, setup.env)
+    env = surrogate_env(setup.scn, is_cav, static, human.humans, params, kwargs)
+    return RunEnv(env, setup, human, folder)
+
+
+def evaluate_on_sumo(policy: Policy, run: str | Path, *, name: str = "outside", exp_id: str | None = None,
+                     results_dir: str = "results", overwrite: bool = False, progress: bool = True
+                     ) -> RunResult:
+    """URB's test days in SUMO for a frozen `policy(key, obs [n, D], idx [n] | None) -> routes [n]`
+    (raw observations of the env, CAVs acting in departure order) after `run`'s human phase,
+    replayed from its records; no training day. Returns the run with its metrics (t_CAV, t_pre, ...)
+    in results_dir/exp_id/ (default id: name_<network>_<task>_s<env seed>)."""
+    folder, config = _train_config(run)
+    args = config["train_args"]
+    return run_policy(FixedPolicy(policy, name), exp_id=exp_id, net=args["net"], task_conf=args["task_conf"],
+                      env_conf=args["env_conf"], env_seed=int(args["env_seed"]),
+                      networks_dir=args["networks_dir"], results_dir=results_dir, overwrite=overwrite,
+                      progress=progress, task_overrides={"training_eps": 0}, human_phase_from=str(folder),
+                      drop_unroutable=bool(args.get("drop_unroutable", False)))
