@@ -9,7 +9,8 @@ resident set passes `--max-rss-gb` (the machine is shared) or that runs past `--
 part's result is merged into `--out/synth_<N>.json` as it ends, so a rerun resumes (`--force`:
 again). Parts:
   gen        netconvert and the demand (wall s; CPU s of netconvert)
-  build      first `load_scenario` with an empty cache (route sampling), then copied into the cache
+  build      first `load_scenario` with an empty cache (route sampling, one process), then copied
+             into the cache
   surrogate  `build_static`, then per B in --batches: first `predict_jit` call (compile + one batch)
              and days/s (`surrogate_speed.rate`); uncalibrated parameters (same cost as calibrated);
              a B whose chunk working set (entries x min(B, chunk) x 4 bytes x 3) would pass
@@ -86,13 +87,15 @@ def part_gen(n: int, args: argparse.Namespace) -> dict[str, Any]:
 
 
 def part_build(n: int, args: argparse.Namespace) -> dict[str, Any]:
-    """$URB_JAX_CACHE points at a fresh folder (the parent set it), so routes are sampled here."""
+    """$URB_JAX_CACHE points at a fresh folder (the parent set it), so routes are sampled here, in
+    this process (`workers=1`: the default pool's forkserver workers are not our children, so their
+    CPU seconds would go uncounted; a pool of w workers divides the CPU seconds by up to w)."""
     import numpy as np
 
     from urb_jax.city.scenario import load_scenario
 
     clock = Clock()
-    scn = load_scenario(name_of(n), networks_dir=nets_dir(args))
+    scn = load_scenario(name_of(n), networks_dir=nets_dir(args), workers=1)
     wall, cpu = clock.read()
     lengths = (scn.routes >= 0).sum(-1)  # [N, K] edges per route
     return {"first_build_s": wall, "first_build_cpu_s": cpu, "agents": scn.n_agents, "od_pairs": scn.n_od,
