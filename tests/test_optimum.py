@@ -67,7 +67,11 @@ def test_local_search_ends_where_no_single_move_improves(problem):
     assert (out[~prob.is_cav] == prob.fixed[~prob.is_cav]).all()  # the humans stay fixed
     j = prob.objective(params, out[None])[0]
     days, _ = single_moves(prob, out)  # brute force: every joint action one CAV away
-    assert prob.objective(params, days).min() >= j - 1e-6
+    # The search stops when no move gains more than 1e-6 min against its own running J; the brute
+    # force evaluates the days in a batch of ~480 and `out` alone, and float32 sums over a batch and
+    # a single row differ by a few ulps (2.4e-7 min each at 3.26 min; 1.9e-6 seen on one machine):
+    # 1e-5 covers both, far below the ~0.002 min a route change that matters moves J here.
+    assert prob.objective(params, days).min() >= j - 1e-5
     assert j < prob.objective(params, prob.fixed[None])[0]  # and it improved on AON
 
 
