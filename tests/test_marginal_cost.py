@@ -86,3 +86,11 @@ def test_marginal_cost_without_a_surrogate_is_refused(confs, tmp_path):
     assert main(["baseline", "--model", "aon", "--task-conf", confs["task_conf"],
                  "--results-dir", str(tmp_path)]) == 2
     assert not any(tmp_path.iterdir())
+
+
+def test_the_pettingzoo_envs_refuse_rewards_they_cannot_pay(grid_scenario):
+    from urb_jax.experiment.pettingzoo_env import UrbParallelEnv
+
+    for task in (TaskConfig(marginal_cost_beta=1.0), TaskConfig(reward_credit="marginal")):
+        with pytest.raises(ConfigError, match="without a surrogate"):
+            UrbParallelEnv(grid_scenario, task=task)
