@@ -39,7 +39,6 @@ REFUSED = {
     "env_config/clusters-sumo-obs.json": "live SUMO observations",
     "env_config/clusters.json": "clustered route sets",
     "env_config/test.json": "clustered route sets",
-    "task_config/config_marginal_*": "marginal-cost reward (the config_marginal_* tasks",
     "task_config/asgn_*": "assignment-sampling experiments",
 }
 

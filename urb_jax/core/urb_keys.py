@@ -188,8 +188,6 @@ UNIMPLEMENTED_ALGORITHMS: dict[str, str] = {
     "reinforce_tabular": "URB's tabular REINFORCE (scripts/reinforce_tabular.py)",
 }
 
-_MARGINAL = ("URB's marginal-cost reward (the config_marginal_* tasks; RouteRL machine parameter "
-             "marginal_cost_coefficient_beta): not implemented yet")
 _ASSIGNMENT = "URB's assignment-sampling experiments (scripts/asgn_simulations.py)"
 _ASSIGNMENT_KEYS = (
     "greedy_num_samples", "greedy_num_candidates", "num_tasks_greedy", "random_num_samples",
@@ -199,7 +197,8 @@ _ASSIGNMENT_KEYS = (
 
 TASK_FAMILY = Family(
     "task_config", "scripts/*.py (task keys)",
-    refused={"marginal_cost_coefficient_beta": _MARGINAL, **dict.fromkeys(_ASSIGNMENT_KEYS, _ASSIGNMENT)})
+    aliases={"marginal_cost_coefficient_beta": "marginal_cost_beta"},  # the config_marginal_* tasks
+    refused=dict.fromkeys(_ASSIGNMENT_KEYS, _ASSIGNMENT))
 
 # `observation_type` is what URB's *_clusters scripts read first, falling back to `observations`
 # (e.g. scripts/mappo_clusters.py: params.get("observation_type", params.get("observations", ...))).

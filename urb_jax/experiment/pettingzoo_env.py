@@ -30,6 +30,7 @@ from pettingzoo import AECEnv, ParallelEnv
 from pettingzoo.utils import AgentSelector
 
 from urb_jax.city.scenario import Scenario
+from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.protocol import DayFn, train_humans
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.humans import HumanState, act_jit, end_day_jit
@@ -56,6 +57,11 @@ class _SumoDays:
                is_cav: np.ndarray | None) -> None:
         self.scenario = scenario
         self.task = task or TaskConfig()
+        if self.task.reward_credit != "group" or self.task.marginal_cost_beta != 0.0:
+            raise ConfigError("the PettingZoo envs run SUMO days without a surrogate, so they pay URB's "
+                              "group rewards only: task key reward_credit 'marginal' and marginal_cost_beta "
+                              "need the surrogate's derivative. Fix: use them with `urb-jax train` (hybrid "
+                              "or surrogate mode), or set reward_credit 'group' and marginal_cost_beta 0.")
         self.env_config = env_config or EnvConfig()
         self.env_seed = env_seed
         self.day_fn = day_fn or run_day

@@ -147,6 +147,12 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
                           "calibrated surrogate's derivative, and this run has no surrogate "
                           f"({'a baseline' if not train else '--mode sumo'}). Fix: train with --mode hybrid "
                           "or surrogate, or set reward_credit to 'group' (URB's rewards).")
+    if task.marginal_cost_beta != 0.0 and (not train or mode == "sumo"):
+        raise ConfigError(f"{where}: key 'marginal_cost_beta' is {task.marginal_cost_beta} (URB's "
+                          "marginal_cost_coefficient_beta), which charges each CAV the delay it adds to "
+                          "others, taken from the calibrated surrogate's derivative, and this run has no "
+                          f"surrogate ({'a baseline' if not train else '--mode sumo'}). Fix: train with "
+                          "--mode hybrid or surrogate, or set it to 0.")
     if task.human_learning_episodes < 1:
         raise ConfigError(f"{where}: key 'human_learning_episodes' is 0, but t_pre is measured on the "
                           "last human days. Fix: set it to 1 or more (200 in URB's configs).")

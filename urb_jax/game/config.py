@@ -60,6 +60,9 @@ class TaskConfig:
     # "marginal": each CAV is paid its marginal effect on the behaviour's groups, from the calibrated
     # surrogate's derivative (game.rewards.credit_rewards; hybrid and surrogate modes). "group": URB.
     reward_credit: str = "group"
+    # URB's marginal-cost tasks (config_marginal_*: marginal_cost_coefficient_beta): each CAV also pays
+    # beta x the delay it adds to everyone else (game.rewards.marginal_cost_rewards); 0: none
+    marginal_cost_beta: float = 0.0
 
     def __post_init__(self) -> None:
         if isinstance(self.av_behavior, list):
@@ -73,6 +76,9 @@ class TaskConfig:
             raise ConfigError(f"key 'demand_scale' must be > 0, got {self.demand_scale}.")
         if self.demand_mode not in DEMAND_MODES:
             raise ConfigError(f"key 'demand_mode' must be one of {DEMAND_MODES}, got {self.demand_mode!r}.")
+        if not 0.0 <= self.marginal_cost_beta < float("inf"):
+            raise ConfigError(f"key 'marginal_cost_beta' must be a number >= 0 (URB: 0 to 5), got "
+                              f"{self.marginal_cost_beta}.")
         if self.reward_credit not in CREDITS:
             raise ConfigError(f"key 'reward_credit' must be one of {CREDITS}, got {self.reward_credit!r}.")
         behaviour_coefficients(self.av_behavior)  # validates name / 4-tuple

@@ -29,7 +29,7 @@ import numpy as np
 from urb_jax.city.scenario import Scenario
 from urb_jax.game.humans import HumanParams, HumanState, act, aon_routes, end_day, init_humans
 from urb_jax.game.observations import ObservationSpec, make_observation_spec, observe
-from urb_jax.game.rewards import CREDITS, cav_rewards, credit_rewards, externalities
+from urb_jax.game.rewards import CREDITS, cav_rewards, credit_rewards, externalities, marginal_cost_rewards
 
 # Parameters of travel_time_fn (a pytree, e.g. the surrogate's); None for a parameter-free model.
 EnvParams = Any
@@ -61,6 +61,14 @@ class RoutingEnv:
     # "marginal": CAVs are paid per-agent credit from the travel-time model's derivative
     # (game.rewards.credit_rewards); travel_time_fn must then also take probabilities [N, K]
     reward_credit: str = "group"
+    # URB's marginal-cost tasks: minus beta x the delay each CAV adds to everyone else, from the same
+    # derivative (game.rewards.marginal_cost_rewards); 0: none
+    marginal_cost_beta: float = 0.0
+
+    @property
+    def uses_model(self) -> bool:
+        """Its rewards need the travel-time model's derivative (marginal credit or marginal cost)."""
+        return self.reward_credit == "marginal" or self.marginal_cost_beta != 0.0
 
     def __post_init__(self) -> None:
         if self.reward_credit not in CREDITS:
@@ -150,7 +158,7 @@ class RoutingEnv:
         (provisional obs for tomorrow, state, CAV rewards [C], dones [C] (every day ends the CAVs'
         episode, as in URB), info)."""
         choices = self.joint_actions(state, cav_actions)
-        if self.reward_credit == "marginal":
+        if self.uses_model:
             model = self.model_externalities(params, choices)
             return self._end_day(key, state, cav_actions, choices, model[1], model)
         return self._end_day(key, state, cav_actions, choices, self.travel_times(params, choices))
@@ -173,13 +181,16 @@ class RoutingEnv:
         """The one day transition: CAV rewards, the humans' day end, tomorrow's human choices."""
         k_learn, k_act = jax.random.split(key)
         is_cav = jnp.asarray(self.is_cav)
+        if self.uses_model and model is None:
+            raise ValueError("reward_credit 'marginal' and marginal_cost_beta need the model's externalities "
+                             "of a measured day (step_with_times(..., model=env.model_externalities(params, "
+                             "choices)))")
         if self.reward_credit == "marginal":
-            if model is None:
-                raise ValueError("reward_credit 'marginal' needs the model's externalities of a measured day "
-                                 "(step_with_times(..., model=env.model_externalities(params, choices)))")
             rewards_all = credit_rewards(times, is_cav, self.reward_coefficients, model[0])
         else:
             rewards_all = cav_rewards(times, is_cav, self.reward_coefficients)
+        if self.marginal_cost_beta != 0.0:
+            rewards_all = marginal_cost_rewards(rewards_all, model[0], self.marginal_cost_beta)
         humans = end_day(k_learn, state.humans, choices, times, self.human_params, self.is_cav,
                          self.humans_learn)
         human_actions = act(k_act, humans, self.human_params, jnp.asarray(self.scenario.fft))

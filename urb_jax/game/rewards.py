@@ -101,3 +101,11 @@ def credit_rewards(times: jnp.ndarray, is_cav: jnp.ndarray, coefficients: Sequen
     member = jnp.stack([is_cav, ~is_cav, jnp.ones_like(is_cav)]).astype(times.dtype)  # [3, N]
     m = member * times[None] + externality
     return a * times + b * m[0] + c * m[1] + d * m[2]
+
+
+def marginal_cost_rewards(rewards: jnp.ndarray, externality: jnp.ndarray, beta: float) -> jnp.ndarray:
+    """URB's marginal-cost task family (`config_marginal_*`, key marginal_cost_coefficient_beta):
+    "AVs care about their impact". Each agent's behaviour reward minus beta times the delay its trip
+    adds to everyone else (`externalities` row 2, the agent's own time excluded):
+    R_i = R_i^behaviour - beta * E_all,i. beta = 0 is the behaviour reward itself."""
+    return rewards - beta * externality[2]

@@ -102,7 +102,7 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
 
     def _sumo_step(keys: jax.Array, states: EnvState, obs: jnp.ndarray, actions: jnp.ndarray,
                    times: jnp.ndarray, params: Params) -> tuple[EnvState, Day]:
-        if real_env.reward_credit == "marginal":  # SUMO measures the day, the surrogate its derivative
+        if real_env.uses_model:  # SUMO measures the day, the surrogate its derivative
             choices = jax.vmap(real_env.joint_actions)(states, actions)
             model = jax.vmap(lambda c: env.model_externalities(params, c))(choices)
             step = jax.vmap(real_env.step_with_times)

@@ -160,7 +160,7 @@ def routing_env_kwargs(task: TaskConfig, env_cfg: EnvConfig) -> dict[str, Any]:
     """`RoutingEnv` keywords from the task and env configs (the same for surrogate and SUMO days)."""
     return dict(human_params=task.human_params(), reward_coefficients=task.reward_coefficients,
                 observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt,
-                reward_credit=task.reward_credit)
+                reward_credit=task.reward_credit, marginal_cost_beta=task.marginal_cost_beta)
 
 
 def surrogate_env(scn: Scenario, is_cav: np.ndarray, static: Static, humans: HumanState, params: Params,
