@@ -89,17 +89,22 @@ def test_surrogate_externalities_match_finite_differences(grid_scenario):
         assert float(ext[2, i]) == pytest.approx((bumped - np.asarray(times))[others].sum() / 0.1, rel=0.1)
 
 
-@pytest.fixture(scope="module")
-def confs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("credit")
+def tiny_reward_run(d: Path, **task_keys) -> dict[str, str]:
+    """A tiny hybrid run's configs (3 rounds of 4 surrogate and 2 SUMO days, 30% CAVs) with the
+    task config `test` plus `task_keys`."""
     hyb = {"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
            "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
            "refit_days": 4, "refit_steps": 5}
-    task = {**json.loads(find_config("task", "test").read_text()), "ratio_machines": 0.3,
-            "av_behavior": "cooperative", "reward_credit": "marginal"}
+    task = {**json.loads(find_config("task", "test").read_text()), "ratio_machines": 0.3, **task_keys}
     (d / "hyb.json").write_text(json.dumps(hyb))
     (d / "task.json").write_text(json.dumps(task))
     return {"hybrid_conf": str(d / "hyb.json"), "task_conf": str(d / "task.json")}
+
+
+@pytest.fixture(scope="module")
+def confs(tmp_path_factory):
+    return tiny_reward_run(tmp_path_factory.mktemp("credit"), av_behavior="cooperative",
+                           reward_credit="marginal")
 
 
 def test_hybrid_run_pays_cavs_their_credit(confs, tmp_path):

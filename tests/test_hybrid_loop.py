@@ -44,9 +44,9 @@ class FakeExecutor:
         pass
 
 
-@pytest.fixture(scope="module")
-def confs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("confs")
+def tiny_iql_run(d: Path) -> dict[str, str]:
+    """A tiny IQL hybrid run's configs in `d` (3 rounds of 4 surrogate and 2 SUMO days, task `test`);
+    also hyb_reuse.json, the same with repeated test days read back."""
     hyb = {"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
            "sumo_updates": 1, "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2,
            "calib_steps": 20, "refit_days": 4, "refit_steps": 5,
@@ -57,6 +57,11 @@ def confs(tmp_path_factory):
     (d / "hyb_reuse.json").write_text(json.dumps({**hyb, "reuse_identical_test_days": True}))
     (d / "iql.json").write_text(json.dumps(alg))
     return {"hybrid_conf": str(d / "hyb.json"), "alg_conf": str(d / "iql.json"), "task_conf": "test"}
+
+
+@pytest.fixture(scope="module")
+def confs(tmp_path_factory):
+    return tiny_iql_run(tmp_path_factory.mktemp("confs"))
 
 
 def _train(confs, tmp_path, exp_id, executor=None, **kw):

@@ -13,11 +13,10 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_credit import linear_model
+from test_credit import linear_model, tiny_reward_run
 from test_hybrid_loop import FakeExecutor
 
 from urb_jax.commands.cli import main
-from urb_jax.core.configio import find_config
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.run import run_train
 from urb_jax.game.config import TaskConfig, load_task
@@ -56,15 +55,8 @@ def test_a_negative_beta_is_refused():
 
 @pytest.fixture(scope="module")
 def confs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("marginal")
-    hyb = {"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
-           "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
-           "refit_days": 4, "refit_steps": 5}
-    task = {**json.loads(find_config("task", "test").read_text()), "ratio_machines": 0.3,
-            "marginal_cost_coefficient_beta": 2.0}  # URB's key name, as in its config_marginal_* files
-    (d / "hyb.json").write_text(json.dumps(hyb))
-    (d / "task.json").write_text(json.dumps(task))
-    return {"hybrid_conf": str(d / "hyb.json"), "task_conf": str(d / "task.json")}
+    # URB's key name, as in its config_marginal_* files
+    return tiny_reward_run(tmp_path_factory.mktemp("marginal"), marginal_cost_coefficient_beta=2.0)
 
 
 def test_hybrid_run_charges_cavs_their_marginal_cost(confs, tmp_path):

@@ -69,7 +69,8 @@ def test_unknown_keys_wrong_types_and_bad_values_fail_naming_the_override(tmp_pa
         "alg.lr=abc": ["--set alg.lr=abc", "'lr' takes float", "'abc' (str)", "Fix: give a float"],
         "hybrid.num_envs=2.5": ["--set hybrid.num_envs=2.5", "'num_envs' takes int"],
         "task.ratio_machines=2": ["with --set task.ratio_machines=2", "'ratio_machines' must be in [0, 1]"],
-        "task.marginal_cost_coefficient_beta=0.1": ["marginal-cost reward", "does not implement"],
+        "task.greedy_num_samples=5": ["assignment-sampling experiments", "does not implement"],
+        "task.marginal_cost_coefficient_beta=-1": ["'marginal_cost_beta' must be a number >= 0"],
         "task.desc=x": ["no key 'desc'"],
         "foo.lr=1": ["SECTION one of task, env, alg, hybrid"],
     }

@@ -5,7 +5,6 @@ the flag never needs it."""
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -14,7 +13,7 @@ import pandas as pd
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fakeday import FakeDay
+from test_hybrid_loop import FakeExecutor, tiny_iql_run
 
 from urb_jax.commands import cli
 from urb_jax.experiment.round_log import round_log
@@ -25,29 +24,9 @@ event_accumulator = pytest.importorskip("tensorboard.backend.event_processing.ev
                                         reason="tensorboard (the dev extra's event reader) is not installed")
 
 
-class FakeExecutor:
-    def __init__(self) -> None:
-        self.day = FakeDay()
-
-    def run_days(self, scenario, choices, seeds, is_cav=None):
-        return [self.day(scenario, c, seed=int(s), is_cav=is_cav)
-                for c, s in zip(np.asarray(choices), np.broadcast_to(seeds, (len(choices),)), strict=True)]
-
-    def close(self) -> None:
-        pass
-
-
 @pytest.fixture(scope="module")
 def confs(tmp_path_factory):
-    d = tmp_path_factory.mktemp("confs")
-    hyb = {"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
-           "sumo_updates": 1, "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2,
-           "calib_steps": 20, "refit_days": 4, "refit_steps": 5}
-    alg = {"agent_frames_per_batch": 2, "n_iters": 10, "num_epochs": 1, "minibatch_size": 64,
-           "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400}
-    (d / "hyb.json").write_text(json.dumps(hyb))
-    (d / "iql.json").write_text(json.dumps(alg))
-    return {"hybrid_conf": str(d / "hyb.json"), "alg_conf": str(d / "iql.json"), "task_conf": "test"}
+    return tiny_iql_run(tmp_path_factory.mktemp("confs"))
 
 
 def _train(confs, tmp_path, exp_id, **kw):
