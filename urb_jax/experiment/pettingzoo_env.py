@@ -57,7 +57,7 @@ class _SumoDays:
                is_cav: np.ndarray | None) -> None:
         self.scenario = scenario
         self.task = task or TaskConfig()
-        if self.task.reward_credit != "group" or self.task.marginal_cost_beta != 0.0:
+        if self.task.surrogate_reward_keys:
             raise ConfigError("the PettingZoo envs run SUMO days without a surrogate, so they pay URB's "
                               "group rewards only: task key reward_credit 'marginal' and marginal_cost_beta "
                               "need the surrogate's derivative. Fix: use them with `urb-jax train` (hybrid "

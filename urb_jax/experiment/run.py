@@ -142,17 +142,14 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
     no test day (t_CAV, t_test, WR), or, for training, no CAV to train; and a marginal credit
     without a calibrated surrogate to take its derivative (baselines, `--mode sumo`)."""
     where = f"task config {task_path}"
-    if task.reward_credit == "marginal" and (not train or mode == "sumo"):
-        raise ConfigError(f"{where}: key 'reward_credit' is 'marginal', which pays each CAV from the "
-                          "calibrated surrogate's derivative, and this run has no surrogate "
-                          f"({'a baseline' if not train else '--mode sumo'}). Fix: train with --mode hybrid "
-                          "or surrogate, or set reward_credit to 'group' (URB's rewards).")
-    if task.marginal_cost_beta != 0.0 and (not train or mode == "sumo"):
-        raise ConfigError(f"{where}: key 'marginal_cost_beta' is {task.marginal_cost_beta} (URB's "
-                          "marginal_cost_coefficient_beta), which charges each CAV the delay it adds to "
-                          "others, taken from the calibrated surrogate's derivative, and this run has no "
-                          f"surrogate ({'a baseline' if not train else '--mode sumo'}). Fix: train with "
-                          "--mode hybrid or surrogate, or set it to 0.")
+    needs = task.surrogate_reward_keys
+    if needs and (not train or mode == "sumo"):
+        given = " and ".join(f"'{k}' = {getattr(task, k)!r}" for k in needs)
+        raise ConfigError(f"{where}: key(s) {given} pay each CAV from the calibrated surrogate's "
+                          "derivative (the marginal credit; URB's marginal_cost_coefficient_beta), and this "
+                          f"run has no surrogate ({'a baseline' if not train else '--mode sumo'}). Fix: "
+                          "train with --mode hybrid or surrogate, or set reward_credit 'group' and "
+                          "marginal_cost_beta 0 (URB's rewards).")
     if task.human_learning_episodes < 1:
         raise ConfigError(f"{where}: key 'human_learning_episodes' is 0, but t_pre is measured on the "
                           "last human days. Fix: set it to 1 or more (200 in URB's configs).")

@@ -85,6 +85,12 @@ class TaskConfig:
         self.human_params()  # validates the human model
 
     @property
+    def surrogate_reward_keys(self) -> list[str]:
+        """The keys whose rewards need the calibrated surrogate's derivative (none: URB's rewards)."""
+        return [key for key, on in (("reward_credit", self.reward_credit == "marginal"),
+                                    ("marginal_cost_beta", self.marginal_cost_beta != 0.0)) if on]
+
+    @property
     def reward_coefficients(self) -> tuple[float, float, float, float]:
         return behaviour_coefficients(self.av_behavior)
 
