@@ -14,6 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fakeday import FakeDay
 from test_hybrid_loop import FakeExecutor
 
+from urb_jax.experiment.run import run_baseline
 from urb_jax.experiment.suite import SuiteRun, run_suite, status, write_report
 from urb_jax.reporting.records import read_records
 
@@ -46,6 +47,11 @@ def test_suite_resumes_skips_and_reports(tmp_path):
     assert [f.name for f in folders] == ["iqls_s0", "iqls_s1", "aon"]
     for a, b in zip(ref, folders, strict=True):  # the resumed suite ends exactly like the straight one
         pd.testing.assert_frame_equal(read_records(a), read_records(b))
+    # the baseline replayed the train run's human phase instead of simulating it, to the same records
+    assert json.loads((results / "aon" / "exp_config.json").read_text())["human_phase_from"] == "iqls_s0"
+    alone = run_baseline(model="aon", task_conf="test", day_fn=FakeDay(), exp_id="aon",
+                         results_dir=str(tmp_path / "alone"), progress=False)
+    pd.testing.assert_frame_equal(read_records(alone.folder), read_records(results / "aon"))
     # a third time: everything finished, nothing simulated
     ex, day = FakeExecutor(), FakeDay()
     lines.clear()
@@ -57,6 +63,29 @@ def test_suite_resumes_skips_and_reports(tmp_path):
     assert "| iql_star | 2 |" in text and "| baseline_aon | 1 |" in text
     assert sorted(p.name for p in (tmp_path / "report" / "figures").iterdir()) == [
         "urb_grid_baseline_aon_test.png", "urb_grid_iql_star_test.png"]
+
+
+@pytest.mark.slow
+def test_a_suite_simulates_each_human_phase_once(tmp_path):
+    """Two train runs on the same humans: the second replays the first's human phase (its executor
+    sees CAV days only); a run whose human phase differs (another env seed) simulates its own."""
+    conf = tmp_path / "hyb.json"
+    conf.write_text(json.dumps({"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4,
+                                "sumo_days_per_round": 2, "sumo_workers": 1, "calib_human_days": 5,
+                                "calib_varied_days": 2, "calib_steps": 20, "refit_days": 4,
+                                "refit_steps": 5}))
+    args = {"task_conf": "test", "hybrid_conf": str(conf)}
+    ex = [FakeExecutor() for _ in range(3)]
+    runs = [SuiteRun("train", "first", {"alg": "iql_star", "executor": ex[0], **args}),
+            SuiteRun("train", "second", {"alg": "iql", "executor": ex[1], **args}),
+            SuiteRun("train", "other_seed", {"alg": "iql", "executor": ex[2], "env_seed": 7, **args})]
+    run_suite(runs, tmp_path / "r", progress=False, log=lambda _: None)
+    cfg = {f.parent.name: json.loads(f.read_text()) for f in (tmp_path / "r").glob("*/exp_config.json")}
+    assert cfg["second"]["human_phase_from"] == "first"
+    assert cfg["first"]["human_phase_from"] is None and cfg["other_seed"]["human_phase_from"] is None
+    assert all(cav is not None for _, cav in ex[1].batches)  # no human day simulated again
+    assert any(cav is None for _, cav in ex[2].batches)
+    # (a replayed human phase gives the records a simulated one would: test_hybrid_seeds.py)
 
 
 @pytest.mark.parametrize("runs, message", [

@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -51,6 +51,7 @@ from urb_jax.surrogate.calibrate import FitConfig, Params, SumoSample, fit_with_
 from urb_jax.surrogate.data import make_choices
 from urb_jax.surrogate.model import Static
 
+T = TypeVar("T")  # what a reuse check returns (first_reusable)
 HUMAN_FILE = "human_phase.npz"
 JOURNAL_DIR = "human_days.journal"  # in the run's first folder
 JOURNAL_KEY = "human_days_journal"  # exp_config.json: the folder that holds the journal
@@ -270,6 +271,23 @@ def load_replay(source: Path, config: dict[str, Any], agent_id: np.ndarray, days
     human phase (`urb-jax baseline --human-phase-from`)."""
     check_replayable(source, config, days)
     return _replay(source, agent_id, days, day_fn)
+
+
+def first_reusable(results_dir: Path, candidates: Sequence[str], reuse: Callable[[Path], T]
+                   ) -> tuple[str, T] | None:
+    """(id, what `reuse` returned) of the first finished run among `candidates` (experiment ids in
+    `results_dir`) whose human phase `reuse` accepts; `reuse` raises UrbJaxError to refuse one.
+    What a suite uses to simulate each human phase once: runs that differ only in their CAVs
+    (algorithm, CAV behaviour, seeds) share it, and `reuse` checks everything else."""
+    for exp_id in candidates:
+        cfg = results_dir / exp_id / "exp_config.json"
+        if not cfg.is_file() or json.loads(cfg.read_text()).get("status") != "done":
+            continue
+        try:
+            return exp_id, reuse(results_dir / exp_id)
+        except UrbJaxError:
+            continue
+    return None
 
 
 def check_replayable(source: Path, config: dict[str, Any], days: int) -> None:

@@ -15,7 +15,7 @@ import functools
 import json
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -40,6 +40,7 @@ from urb_jax.experiment.human_phase import (
     HumanPhase,
     check_replayable,
     drop_journal,
+    first_reusable,
     journal,
     load_replay,
     reuse_human_phase,
@@ -229,10 +230,13 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
               executor: DayExecutor | None = None, stop_after_round: int | None = None,
               executor_kind: str = "pool", ray_address: str | None = None,
               human_phase_from: str | None = None, drop_unroutable: bool = False,
-              overrides: list[str] | None = None, log: str | None = None) -> list[RunResult]:
+              overrides: list[str] | None = None, log: str | None = None,
+              human_phase_candidates: Sequence[str] = ()) -> list[RunResult]:
     """Train every seed (sharing the human phase and the SUMO executor; groups of up to
     `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
-    `human_phase_from`: reuse that earlier train run's human phase instead of simulating it.
+    `human_phase_from`: reuse that earlier train run's human phase instead of simulating it;
+    `human_phase_candidates`: reuse the first of these finished runs' whose human phase is this
+    run's, if any (a suite's earlier runs).
     `overrides`: `--set SECTION.KEY=VALUE` items (recorded; a resume re-applies them). `log`:
     "tensorboard" logs each round to results/<id>/tensorboard/ (`round_log`)."""
     enable_compile_cache()
@@ -250,9 +254,16 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=mode)
     config = _train_config(setup, args, human_phase_from)
     human = None  # checked before any results folder is created
+
+    def reuse(source: Path) -> HumanPhase:
+        return reuse_human_phase(source, config, setup.scn, setup.task, setup.hyb, env_seed,
+                                 calibrate=mode != "sumo")
+
     if human_phase_from:
-        human = reuse_human_phase(Path(results_dir) / human_phase_from, config, setup.scn, setup.task,
-                                  setup.hyb, env_seed, calibrate=mode != "sumo")
+        human = reuse(Path(results_dir) / human_phase_from)
+    elif found := first_reusable(Path(results_dir), human_phase_candidates, reuse):
+        human_phase_from, human = found
+        config["human_phase_from"] = human_phase_from
     names = train_run_names(exp_id, args["alg"], mode, net, setup.task_path.stem, seeds)
     folders = {s: create_results_dir(results_dir, name, overwrite)
                for s, name in zip(seeds, names, strict=True)}
@@ -477,16 +488,17 @@ def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str =
                  progress: bool = True, day_fn: DayFn | None = None,
                  task_overrides: dict[str, Any] | None = None, human_phase_from: str | None = None,
                  drop_unroutable: bool = False, alg_conf: str | None = None,
-                 overrides: list[str] | None = None) -> RunResult:
+                 overrides: list[str] | None = None, human_phase_candidates: Sequence[str] = ()) -> RunResult:
     """One baseline experiment in results/<exp_id>/ (`human_phase_from`: days 1..H replayed from
-    that run's records instead of simulated; `alg_conf`: URB's baseline algo config, whose
+    that run's records instead of simulated; `human_phase_candidates`: from the first of these
+    finished runs that can be replayed, if any; `alg_conf`: URB's baseline algo config, whose
     training_eps sets the CAV days; `overrides`: --set items of the task, env and alg configs)."""
     return _run_policy(make_baseline(model), lambda task: baseline_names(model, task.training_eps),
                        net=net, task_conf=task_conf, env_conf=env_conf, env_seed=env_seed, exp_id=exp_id,
                        id_prefix=model, networks_dir=networks_dir, results_dir=results_dir,
                        overwrite=overwrite, progress=progress, day_fn=day_fn, task_overrides=task_overrides,
                        human_phase_from=human_phase_from, drop_unroutable=drop_unroutable, alg_conf=alg_conf,
-                       overrides=overrides)
+                       overrides=overrides, human_phase_candidates=human_phase_candidates)
 
 
 @with_run_log
@@ -514,7 +526,7 @@ def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, A
                 networks_dir: str | None, results_dir: str, overwrite: bool, progress: bool,
                 day_fn: DayFn | None, task_overrides: dict[str, Any] | None, human_phase_from: str | None,
                 drop_unroutable: bool, alg_conf: str | None = None,
-                overrides: list[str] | None = None) -> RunResult:
+                overrides: list[str] | None = None, human_phase_candidates: Sequence[str] = ()) -> RunResult:
     """Every day in SUMO with `policy`; `labels_of(task)`: what exp_config.json calls the policy; the
     default id is `id_prefix`_<network>_<task>_s<env seed>."""
     enable_compile_cache()
@@ -533,6 +545,9 @@ def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, A
     config[OVERRIDES_KEY] = override_record(overrides, loaded)
     if human_phase_from:  # a source that cannot be replayed: no folder either
         check_replayable(Path(results_dir) / human_phase_from, config, task.human_learning_episodes)
+    elif found := first_reusable(Path(results_dir), human_phase_candidates,
+                                 lambda src: check_replayable(src, config, task.human_learning_episodes)):
+        human_phase_from = config["human_phase_from"] = found[0]
     folder = create_results_dir(results_dir, exp_id, overwrite)
     log_run_to(folder)
     write_config(folder, config)

@@ -4,7 +4,8 @@ A suite is a list of `SuiteRun`s (a catalogue entry expands into them): each is 
 (its seeds trained together) or `urb-jax baseline`, with a fixed experiment id. Running the suite
 again skips the runs that finished, resumes the ones that were stopped (`resume_train`: their
 newest checkpoint), and starts the others; so a killed suite continues where it was. Every run
-prints its own progress; the suite adds a line per run.
+prints its own progress; the suite adds a line per run. Each human phase is simulated once: a new
+run replays an earlier run's of the suite where they match (`human_phase.first_reusable`).
 """
 
 from __future__ import annotations
@@ -68,16 +69,23 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
         log(f"suite: run {i}/{len(runs)} {run.exp_id} ({run.kind}): "
             f"{ {'done': 'finished before, skipped', 'stopped': 'resuming', 'new': 'starting'}[state] }, "
             f"{time.perf_counter() - t0:.0f} s into the suite")
+        # A human phase depends on the network, demand, humans and env seed, not on the CAVs: a new
+        # run replays the first earlier run's that matches (checked by the run itself) instead of
+        # simulating it again; the records are the same bytes (tests/test_suite.py).
+        earlier = [f.name for f in folders]
+        shared = {} if "human_phase_from" in run.kwargs else {"human_phase_candidates": earlier}
         if state == "stopped" and run.kind == "train":
             resume_train(run.folder_names()[0], results_dir=str(results_dir), progress=progress,
                          executor=run.kwargs.get("executor"))
         elif state == "stopped":  # a baseline has no checkpoint: it starts again in its own folder
             run_baseline(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, overwrite=True,
-                         **run.kwargs)
+                         **shared, **run.kwargs)
         elif state == "new" and run.kind == "train":
-            run_train(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **run.kwargs)
+            run_train(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **shared,
+                      **run.kwargs)
         elif state == "new":
-            run_baseline(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **run.kwargs)
+            run_baseline(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **shared,
+                         **run.kwargs)
         folders += [results_dir / name for name in run.folder_names()]
     return folders
 
@@ -94,7 +102,8 @@ def write_report(title: str, folders: list[Path], out_dir: str | Path, preamble:
 
 
 # Keyword arguments a suite file may give each kind (the commands' own flags, as Python names).
-_NOT_FROM_FILES = {"exp_id", "results_dir", "progress", "executor", "day_fn", "stop_after_round", "overwrite"}
+_NOT_FROM_FILES = {"exp_id", "results_dir", "progress", "executor", "day_fn", "stop_after_round", "overwrite",
+                   "human_phase_candidates"}
 ALLOWED_ARGS = {kind: set(inspect.signature(fn).parameters) - _NOT_FROM_FILES
                 for kind, fn in (("train", run_train), ("baseline", run_baseline))}
 
