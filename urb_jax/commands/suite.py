@@ -18,9 +18,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="folder of URB networks, for every run whose args do not name one")
     parser.add_argument("--only", default=None, help="comma-separated run ids: run (and report) just these")
     parser.add_argument("--results-dir", default="results")
-    parser.add_argument("--out", default=None, help="report folder (default: RESULTS_DIR/suite_<file stem>)")
+    parser.add_argument("--out", default=None, help="report folder (default: RESULTS_DIR/suite_<file stem>); "
+                                                       "with --paper the page (default: docs/paper.md)")
     parser.add_argument("--no-progress", action="store_true", help="plain progress lines only")
     parser.add_argument("--report-only", action="store_true", help="write the report of the finished runs")
+    parser.add_argument("--paper", action="store_true",
+                        help="write docs/paper.md: every paper catalogue entry's finished runs under "
+                             "RESULTS_DIR beside the paper's tables (configs/paper/urb_paper.json), a line "
+                             "per row on whether the paper's conclusion holds; runs nothing")
     parser.add_argument("--list", action="store_true",
                         help="list the shipped suites (the paper's catalogue and the others) and exit")
     parser.set_defaults(func=run)
@@ -30,8 +35,11 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from urb_jax.core.configio import find_config
-    from urb_jax.experiment.suite import load_suite, run_suite, select, status, write_report
+    from urb_jax.experiment.suite import load_suite, paper_report, run_suite, select, status, write_report
 
+    if args.paper:
+        print(f"paper: {paper_report(args.results_dir, args.out or 'docs/paper.md')}")
+        return 0
     if args.list or not args.suite:
         return _list(args.list)
     spec = select(load_suite(find_config("suites", args.suite)), args.only, args.networks_dir)

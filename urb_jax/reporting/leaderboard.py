@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -56,15 +57,15 @@ def collect_folders(folders: list[Path]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def aggregate(runs: pd.DataFrame) -> pd.DataFrame:
-    """Mean and std over seeds per group; WR = % of runs with winrate 1."""
+def aggregate(runs: pd.DataFrame, metrics: Sequence[str] = SHOWN) -> pd.DataFrame:
+    """Mean and std over seeds per group of each of `metrics`; WR = % of runs with winrate 1."""
     out = []
     for key, g in runs.groupby(KEYS, sort=True):
         row = dict(zip(KEYS, key, strict=True))
         row["alg"] = g["alg"].iloc[0]  # urb-jax's id (empty for URB's own runs)
         row["runs"] = len(g)
         row["WR"] = float(100.0 * g["winrate"].mean()) if g["winrate"].notna().any() else np.nan
-        for m in SHOWN:
+        for m in metrics:
             if m in g:
                 vals = pd.to_numeric(g[m], errors="coerce")
                 row[f"{m}_mean"] = vals.mean()

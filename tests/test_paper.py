@@ -1,0 +1,165 @@
+"""docs/paper.md (`urb-jax suite --paper`): the paper's numbers as data, each with its source, and
+the generator that puts our finished catalogue runs beside them and judges each paper conclusion."""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_catalogue import CATALOGUE, SUITES
+
+from urb_jax.core.errors import ConfigError
+from urb_jax.experiment.suite import load_suite
+from urb_jax.reporting.paper import COLUMNS, EntryResults, load_paper_numbers, paper_file, paper_markdown
+from urb_jax.reporting.urb_names import baseline_names, train_names
+
+
+def test_the_data_file_covers_exactly_the_papers_catalogue():
+    entries = load_paper_numbers()["entries"]
+    assert list(entries) == CATALOGUE  # the page follows the catalogue's order
+    assert all((SUITES / f"{e}.json").is_file() for e in entries)
+    # every network a paper table names is one the entry's suite runs
+    for entry, e in entries.items():
+        nets = {r.kwargs["net"] for r in load_suite(SUITES / f"{entry}.json").runs}
+        assert {t["network"] for t in e.get("tables", [])} <= nets, entry
+
+
+def test_every_number_has_a_source_and_not_found_entries_have_none():
+    data = load_paper_numbers()
+    found = 0
+    for entry, e in data["entries"].items():
+        if e["status"] == "not found":
+            assert "tables" not in e and e["notes"], entry
+            unsourced = re.search(r"(?<![\d.])\d\.\d\d(?!\d)", e["notes"])
+            assert not unsourced, f"{entry}: a number without a source"
+            continue
+        for t in e["tables"]:
+            assert t["source"].startswith("https://") and t["caption"]
+            for alg, row in t["rows"].items():
+                assert set(row["values"]) == set(COLUMNS), (entry, t["network"], alg)
+                found += len(row["values"])
+    assert found == 3 * 7 * len(COLUMNS)  # Scenario 1: three networks, 7 rows
+    # independent of the file: the published t_pre and AON t_CAV the project recorded in docs/metrics.md
+    s1 = {t["network"]: t["rows"] for t in data["entries"]["scenario1"]["tables"]}
+    assert [s1[n]["human"]["values"]["t_pre"] for n in ("saint_arnoult", "provins", "ingolstadt_custom")] == [
+        3.15, 2.80, 4.21]
+    assert [s1[n]["aon"]["values"]["t_CAV"] for n in ("saint_arnoult", "provins", "ingolstadt_custom")] == [
+        3.01, 2.76, 4.37]
+
+
+def _edited(tmp_path: Path, edit) -> Path:
+    data = json.loads(paper_file().read_text())
+    edit(data)
+    path = tmp_path / "paper.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def _s1(d: dict, i: int) -> dict:
+    return d["entries"]["scenario1"]["tables"][i]
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: _s1(d, 0)["rows"]["ippo"].update(claims=[["t_CAV", "<", "t_pre"]]),
+     r"rows\.ippo: claim .* does not hold on the paper's own numbers"),
+    (lambda d: _s1(d, 1).pop("source"), r"tables\[1\]: a table needs .*'source'"),
+    (lambda d: d["entries"]["scenario2"].update(tables=[{}]),
+     r"entries\.scenario2: 'not found' has no tables"),
+])
+def test_a_bad_data_file_is_refused_naming_the_field(tmp_path, edit, message):
+    path = _edited(tmp_path, edit)
+    with pytest.raises(ConfigError, match=message) as err:
+        load_paper_numbers(path)
+    assert str(path) in str(err.value) and "Fix:" in str(err.value)
+
+
+def _run(root: Path, name: str, names: dict, network: str, task: str, **metrics: float) -> Path:
+    folder = root / name
+    (folder / "metrics").mkdir(parents=True)
+    cfg = {"network": network, "env_config": "config1", "task_config": task, "exp_type": "normal",
+           "env_seed": 42, "status": "done", **names}
+    (folder / "exp_config.json").write_text(json.dumps(cfg))
+    pd.DataFrame([metrics]).to_csv(folder / "metrics" / "BenchmarkMetrics.csv", index=False)
+    return folder
+
+
+@pytest.fixture
+def scenario1_partly_run(tmp_path):
+    """Scenario 1 on St. Arnoult with IPPO (2 seeds) and AON finished, nothing else."""
+    ippo = train_names("ippo", "hybrid", "default", 6000, "config1")
+    # duration: IPPO's CAVs slower than as humans (as in the paper); travel time: faster (unlike it)
+    folders = [_run(tmp_path, f"s1_saint_arnoult_ippo_s{s}", ippo, "saint_arnoult", "config1",
+                    t_pre=3.19, t_CAV=t, t_pre_duration=3.16, t_CAV_duration=d, winrate=float(t < 3.19))
+               for s, (t, d) in enumerate([(3.17, 3.30), (3.15, 3.34)])]
+    folders.append(_run(tmp_path, "saint_arnoult_aon", baseline_names("aon", 200), "saint_arnoult", "config1",
+                        t_pre=3.19, t_CAV=3.05, t_pre_duration=3.16, t_CAV_duration=3.02, winrate=1.0))
+    return folders
+
+
+def test_the_page_puts_ours_beside_the_papers_rows_and_judges_each_conclusion(scenario1_partly_run):
+    paper = load_paper_numbers()
+    results = [EntryResults("scenario1", "Scenario 1", scenario1_partly_run, 21, 2, 5),
+               EntryResults("scenario2", "Scenario 2", [], 7, 0, 5)]
+    text = paper_markdown(results, paper, "# header")
+    lines = text.splitlines()
+    # the paper's IPPO row, then ours in both measures (mean ± std of the two seeds) right under it
+    i = lines.index("| **IPPO** | paper | 3 | 3.15 | 3.28 | 3.34 | 3.24 | 0.6 | 0.12 | 1.33 | -0.31 | 0.05 "
+                    "| 0 |")
+    assert lines[i + 1].startswith("|  | ours, SUMO duration | 2 | 3.1600 ± 0.0000 | n/a | 3.3200 ± 0.0200 |")
+    assert lines[i + 2].startswith("|  | ours, travel time | 2 | 3.1900 ± 0.0000 | n/a | 3.1600 ± 0.0100 |")
+    assert lines[i + 2].endswith("| 100 |")  # WR: both seeds beat t_pre in travel time
+    # the paper's conclusion: holds in the paper's measure, not in URB's current one
+    ippo = next(line for line in lines if line.startswith("- **IPPO**"))
+    assert ("t_CAV > t_pre: holds in SUMO duration (3.3200 > 3.1600); "
+            "**does not hold** in travel time (3.1600 ≤ 3.1900)") in ippo
+    assert ("t_CAV > AON t_CAV: holds in SUMO duration (3.3200 > 3.0200); "
+            "holds in travel time (3.1600 > 3.0500)") in ippo
+    aon = next(line for line in lines if line.startswith("- **AON**"))
+    assert "t_CAV < t_pre: holds in SUMO duration (3.0200 < 3.1600)" in aon
+    # QMIX did not run, Provins did not run, Scenario 2's numbers were not found
+    assert next(line for line in lines if line.startswith("- **QMIX**")).endswith(": not run yet.")
+    provins = text[text.index("### Provins"):text.index("### Ingolstadt")]
+    assert provins.count("not run yet") == 6 + 7  # six table rows (Human has none), seven conclusion lines
+    s2 = text[text.index("## `scenario2`"):]
+    assert "**The paper's numbers: not found.**" in s2 and "Ours: not run yet" in s2
+
+
+def test_a_row_that_names_a_missing_row_says_which(scenario1_partly_run):
+    """IPPO ran but AON did not: the AON comparison is 'not run yet (AON)', the t_pre one is judged."""
+    paper = load_paper_numbers()
+    text = paper_markdown([EntryResults("scenario1", "S1", scenario1_partly_run[:2], 21, 1, 5)], paper, "")
+    ippo = next(line for line in text.splitlines() if line.startswith("- **IPPO**"))
+    assert "t_CAV > t_pre: holds in SUMO duration" in ippo and "t_CAV > AON t_CAV: not run yet (AON)" in ippo
+
+
+def test_suite_paper_writes_the_page_from_a_results_folder(tmp_path, scenario1_partly_run, monkeypatch):
+    """`urb-jax suite --paper`: finished runs found by the catalogue's run ids, the suite's figures
+    linked relative to the page, every other entry 'not run yet'."""
+    import urb_jax.experiment.suite as suite
+    from urb_jax.commands.cli import main
+
+    def fake_report(title, folders, out_dir, preamble=""):  # the suite's report needs day records
+        (Path(out_dir) / "figures").mkdir(parents=True)
+        (Path(out_dir) / "figures" / "saint_arnoult_ippo_config1.png").write_bytes(b"")
+        return Path(out_dir) / "README.md"
+
+    monkeypatch.setattr(suite, "write_report", fake_report)
+    ippo = train_names("ippo", "hybrid", "default", 6000, "config1")
+    for seed in (2, 3, 4):  # the suite's IPPO run trains seeds 0-4 together: it is done when all are
+        _run(tmp_path, f"s1_saint_arnoult_ippo_s{seed}", ippo, "saint_arnoult", "config1", t_pre=3.19,
+             t_CAV=3.2, t_pre_duration=3.16, t_CAV_duration=3.3, winrate=0.0)
+    out = tmp_path / "docs" / "paper.md"
+    assert main(["suite", "--paper", "--results-dir", str(tmp_path), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "| `scenario1` | found | 2 of 21 runs finished |" in text  # IPPO's 5 seeds are one run, unfinished
+    assert "| `adjusted_iql_ippo` | not found | 1 of 12 runs finished |" in text  # it shares the AON run
+    assert "| `scenario2` | not found | not run yet |" in text
+    assert "![saint_arnoult_ippo_config1](../suite_scenario1/figures/saint_arnoult_ippo_config1.png)" in text
+    assert "- **AON** (paper: AON CAVs faster than the drivers were as humans): t_CAV < t_pre: holds" in text
+    assert not list(out.parent.glob(".*"))  # written atomically: no temporary file left beside it
