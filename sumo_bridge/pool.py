@@ -5,18 +5,11 @@ scheduled by `scheduler.schedule_days` (one retry loop for the pool and the Ray 
 worker that crashes, raises, or exceeds the per-day wall-clock limit is killed and restarted, and
 its day is retried once; a second failure raises `SumoDayError` naming the network, the day and
 SUMO's error output (the tail of that worker's log). SUMO's messages go to one log file per worker.
-
-A worker replies as soon as its day's tripinfo is read (closed by a stub-network load, see
-`sim`), then loads its likely next day while idle: with sequential one-day batches (the human
-phase) the scheduler hands each day to the worker idle longest, whose load is done, so one
-worker's load overlaps the other's day. A worker found dead while idle (e.g. killed during that
-load) is restarted before it is given a day, which then loads as usual; the day is not charged.
 """
 
 from __future__ import annotations
 
 import contextlib
-import logging
 import multiprocessing as mp
 import os
 import shutil
@@ -34,8 +27,6 @@ from urb_jax.sumo_bridge.logs import log_folder, log_tail, redirect_fds
 from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, schedule_days
 from urb_jax.sumo_bridge.sim import Simulator
 from urb_jax.sumo_bridge.types import DayResult
-
-log = logging.getLogger(__name__)
 
 
 def _worker_main(conn: Connection, config: SumoConfig, log_path: str) -> None:
@@ -56,15 +47,10 @@ def _worker_main(conn: Connection, config: SumoConfig, log_path: str) -> None:
             if scn is not None:
                 scenarios[key] = scn
             try:
-                res = sim.run_day(scenarios[key], choices, seed=seed, is_cav=is_cav, preload=False)
+                res = sim.run_day(scenarios[key], choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
+                conn.send(("ok", tid, res))
             except Exception:
                 conn.send(("err", tid, traceback.format_exc()))
-                continue
-            conn.send(("ok", tid, res))
-            try:  # after replying: this load overlaps the caller's work and the other workers' days
-                sim.load_day(scenarios[key], next_seed)
-            except Exception:  # the next day loads (and reports a real error) as usual
-                traceback.print_exc()  # to the worker's log
         sim.close()
 
 
@@ -74,20 +60,15 @@ class _Worker:
     def __init__(self, ctx: mp.context.BaseContext, index: int, config: SumoConfig, log_path: Path) -> None:
         self.index = index
         self.log_path = log_path
-        self._ctx, self._config = ctx, config
         self.shm_dir = config.shm_dir if os.path.isdir(config.shm_dir) else tempfile.gettempdir()
-        self.task: int | None = None
-        self.started = 0.0
-        self.start()
-
-    def start(self) -> None:
-        """Start the process (again, after `kill`: the slot object stays the scheduler's)."""
-        self.conn, child = self._ctx.Pipe()
-        self.proc = self._ctx.Process(target=_worker_main, args=(child, self._config, str(self.log_path)),
-                                      name=f"sumo-worker-{self.index}", daemon=True)
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_worker_main, args=(child, config, str(log_path)),
+                                name=f"sumo-worker-{index}", daemon=True)
         self.proc.start()
         child.close()
         self.scenarios: set[str] = set()
+        self.task: int | None = None
+        self.started = 0.0
 
     def wait_ready(self, timeout: float) -> None:
         if not self.conn.poll(timeout):
@@ -141,10 +122,6 @@ class SumoPool:
 
     # --- the scheduler's backend (scheduler.Workers) ------------------------------------------
     def submit(self, w: _Worker, job: DayJob) -> Failed | None:
-        if not w.proc.is_alive():  # died while idle (e.g. during its pre-load): the day never reached it
-            log.warning("SUMO worker %d died while idle (exit code %s); restarting it before its next "
-                        "day (SUMO log %s)", w.index, w.proc.exitcode, w.log_path)
-            self.restart(w)
         send_scn = None if job.key in w.scenarios else job.scenario  # pickled to a worker once
         try:
             w.conn.send(("day", job.day, job.key, send_scn, job.choices, job.seed, job.is_cav, job.next_seed))
@@ -175,8 +152,9 @@ class SumoPool:
     def restart(self, w: _Worker) -> None:
         w.kill()
         self.restarts += 1
-        w.start()
-        w.wait_ready(self.start_timeout_s)
+        nw = self._spawn(w.index)
+        nw.wait_ready(self.start_timeout_s)
+        self.slots[w.index] = nw
 
     def close(self) -> None:
         """Idle workers stop; busy ones (a day abandoned by Ctrl-C or an error) are killed at once."""

@@ -1,8 +1,6 @@
 """The one retry scheduler for SUMO days on a set of workers (pool processes or Ray actors).
 
-Days wait in a queue and go to idle workers one at a time, the worker last given a day longest
-ago first (with one-day batches it has had the most time to pre-load its next day while the
-others ran theirs, so the workers take turns); the scheduler waits on the busy ones
+Days wait in a queue and go to idle workers one at a time; the scheduler waits on the busy ones
 with the per-day wall-clock limit. A worker that fails (dies, raises, overruns the limit, cannot
 take the day) is restarted and its day retried once, first in the queue; a second failure of the
 same day restarts the other busy workers (their days are abandoned, the executor stays usable)
@@ -47,7 +45,7 @@ class Slot(Protocol):
 
     index: int  # position in the backend's `slots`, kept by a restart
     task: int | None  # day index in the batch, None when idle
-    started: float  # time.monotonic() when the (last) day was handed over; 0.0 before any
+    started: float  # time.monotonic() when the day was handed over
 
 
 class DayJob(NamedTuple):
@@ -140,9 +138,9 @@ class _Run(Generic[S]):
         return done
 
     def _dispatch(self) -> None:
-        """Hand queued days to idle workers, the one last given a day longest ago first."""
+        """Hand queued days to idle workers."""
         seeds, n_slots = self.batch.seeds, len(self.w.slots)
-        for s in sorted(self.w.slots, key=lambda s: s.started):  # stable: slot order at first
+        for s in list(self.w.slots):
             if s.task is not None or not self.todo:
                 continue
             tid = self.todo.popleft()

@@ -4,12 +4,8 @@ libsumo allows one simulation per process, so a `Simulator` owns it: the network
 `libsumo.load` once per day (SUMO has no cheaper exact reset: `loadState` diverges from a fresh
 run), vehicles are added up front with their departure seconds (identical to RouteRL's
 second-by-second `vehicle.add`, checked against the CLI), and per-vehicle results come from
-SUMO's tripinfo output on /dev/shm. The tripinfo file is complete only once SUMO closes it, which
-a `libsumo.load` does. In-process (`run_day`, `InProcessExecutor`) that load is the next day's,
-right after the last step, so a day costs one network load, as SUMO's one-shot CLI run does. A
-pool worker instead closes it by loading a one-edge stub network (`_STUB_NET`: ~5 ms against
-~0.2 s for saint_arnoult's network), replies, and only then loads the next day (`load_day`), so
-that load overlaps the other worker's day and the caller's work instead of delaying the result.
+SUMO's tripinfo output on /dev/shm. The tripinfo file is closed by pre-loading the next day
+right after the last step, so a day costs one network load, as SUMO's one-shot CLI run does.
 """
 
 from __future__ import annotations
@@ -42,16 +38,6 @@ _LIBSUMO: dict[str, object] = {"started": False, "owner": None}
 log = logging.getLogger(__name__)
 # The two lines libsumo/__init__.py prints when pyarrow's version differs from the libarrow
 # libsumo was built against (its buildConfig.ARROW_SO_VERSION), e.g. pyarrow 26 and libarrow2300.
-# A network of one edge: loading it closes a finished day's tripinfo file at ~3% of the cost of
-# parsing saint_arnoult's network, and simulates nothing (no routes are loaded with it).
-_STUB_NET = """<net version="1.20">
-    <edge id="e" from="a" to="b">
-        <lane id="e_0" index="0" speed="10" length="100" shape="0,0 100,0"/>
-    </edge>
-    <junction id="a" type="dead_end" x="0" y="0" incLanes="" intLanes="" shape="0,0"/>
-    <junction id="b" type="dead_end" x="100" y="0" incLanes="e_0" intLanes="" shape="100,0"/>
-</net>
-"""
 _ARROW_NOTICE = ("Warning! pyarrow is installed with version ",
                  " Try to uninstall pyarrow or install a matching pyarrow version")
 
@@ -125,29 +111,6 @@ class Simulator:
         self._fresh = key
         self._trip_path = trip
 
-    def _load_stub(self) -> None:
-        """Close the loaded day's files (its tripinfo) by loading the stub network: nothing is fresh."""
-        stub = self.workdir / "stub.net.xml"
-        if not stub.exists():
-            stub.write_text(_STUB_NET)  # our private scratch folder: nobody else reads it
-        import_libsumo().load(["-n", str(stub), "--no-step-log", "true", "--no-warnings", "true"])
-        self._fresh = None
-        self._trip_path = None
-
-    def _key(self, scn: Scenario, seed: int) -> tuple:
-        """Everything the loaded state depends on (the config may be swapped between days)."""
-        cfg = self.config
-        return (str(scn.net_file), str(self._routes_file(scn)), int(seed),
-                (cfg.additional_files, tuple(cfg.sumo_args(0))))
-
-    def load_day(self, scenario: Scenario, seed: int) -> None:
-        """Load `scenario`'s day with `seed` now (unless it is loaded already), so that the next
-        `run_day` with that seed starts at once: a pool worker calls it after replying."""
-        with redirect_fds(self.log_file if self.redirect_output else None):
-            key = self._key(scenario, seed)
-            if self._fresh != key or _LIBSUMO["owner"] is not self:
-                self._load(key)
-
     def close(self) -> None:
         if _LIBSUMO["owner"] is self:
             libsumo = import_libsumo()
@@ -159,23 +122,21 @@ class Simulator:
 
     # --- one day ------------------------------------------------------------------------
     def run_day(self, scenario: Scenario, choices: np.ndarray, *, seed: int,
-                is_cav: np.ndarray | None = None, next_seed: int | None = None,
-                preload: bool = True) -> DayResult:
-        """One day; `next_seed` (default: `seed`) is the seed the next day is pre-loaded with.
-        `preload=False`: the stub network closes the tripinfo and nothing is pre-loaded (the
-        caller loads the next day later, with `load_day`)."""
-        nxt = (seed if next_seed is None else next_seed) if preload else None
+                is_cav: np.ndarray | None = None, next_seed: int | None = None) -> DayResult:
+        """One day; `next_seed` (default: `seed`) is the seed the next day is pre-loaded with."""
         with redirect_fds(self.log_file if self.redirect_output else None):
-            return self._run_day(scenario, choices, seed, is_cav, nxt)
+            return self._run_day(scenario, choices, seed, is_cav, seed if next_seed is None else next_seed)
 
     def _run_day(self, scn: Scenario, choices: np.ndarray, seed: int,
-                 is_cav: np.ndarray | None, next_seed: int | None) -> DayResult:
+                 is_cav: np.ndarray | None, next_seed: int) -> DayResult:
         libsumo = import_libsumo()
         t0 = time.perf_counter()
         cfg = self.config
         choices = check_choices(scn, choices)
         cav = cav_mask(scn, is_cav)
-        key = self._key(scn, seed)
+        # everything the loaded state depends on (the config may be swapped between days)
+        key = (str(scn.net_file), str(self._routes_file(scn)), int(seed),
+               (cfg.additional_files, tuple(cfg.sumo_args(0))))
         if self._fresh != key or _LIBSUMO["owner"] is not self:
             self._load(key)
         self._fresh = None
@@ -261,10 +222,7 @@ class Simulator:
 
         end_time = simulation.getTime()
         teleports = int(float(simulation.getParameter("", "stats.teleports.total")))
-        if next_seed is None:  # either load closes this day's tripinfo
-            self._load_stub()  # the caller loads the next day later
-        else:
-            self._load((*key[:2], int(next_seed), key[3]))  # pre-loads the next day
+        self._load((*key[:2], int(next_seed), key[3]))  # closes this day's tripinfo; pre-loads the next day
         trips = parse_tripinfo(trip_path)
         trip_path.unlink(missing_ok=True)
         return self._result(scn, trips, removed, pos, depart, seed, teleports, end_time,

@@ -20,7 +20,6 @@ import pytest
 
 from urb_jax.reporting.day_export import day_routes_xml
 from urb_jax.sumo_bridge import ARRIVED, REMOVED_CAP, REMOVED_STUCK, SumoConfig, run_day
-from urb_jax.sumo_bridge.sim import Simulator
 
 pytestmark = pytest.mark.sumo
 
@@ -152,29 +151,6 @@ def test_repeated_days_are_identical(grid_scenario):
     run_day(grid_scenario, np.zeros_like(choices), seed=5)  # something else in between
     b = run_day(grid_scenario, choices, seed=42)
     assert a.same_as(b)
-
-
-def test_stub_closed_day_equals_preloaded_day_and_load_day_preloads(grid_scenario):
-    """A day whose tripinfo the stub network closes (a pool worker's way) is the day closed by the
-    next day's load, and after `load_day` the next day starts without loading."""
-    choices = grid_scenario.fft.argmin(1)
-    sim = Simulator()
-    try:
-        a = sim.run_day(grid_scenario, choices, seed=42)  # closed by pre-loading seed 42
-        b = sim.run_day(grid_scenario, choices, seed=42, preload=False)  # starts from it; stub after
-        loads = sim._n_loads
-        c = sim.run_day(grid_scenario, choices, seed=42, preload=False)  # nothing loaded: loads first
-        assert sim._n_loads == loads + 1
-        sim.load_day(grid_scenario, 5)
-        other = sim.run_day(grid_scenario, choices, seed=5, preload=False)
-        sim.load_day(grid_scenario, 42)
-        loads = sim._n_loads
-        d = sim.run_day(grid_scenario, choices, seed=42)
-        assert sim._n_loads == loads + 1  # only the pre-load after the day
-    finally:
-        sim.close()
-    assert a.same_as(b) and a.same_as(c) and a.same_as(d)
-    assert other.seed == 5 and other.n == a.n
 
 
 def make_blocker(scn, choices, tmp_path, duration: int = 1500) -> tuple[Path, str]:

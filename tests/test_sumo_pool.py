@@ -78,28 +78,6 @@ def test_worker_killed_mid_day_is_restarted_and_day_repeated(pool, grid_scenario
     assert not list(Path(pool.slots[0].shm_dir).glob(f"urbjax-sumo-{killed[0]}-*"))  # files cleaned
 
 
-def test_one_day_batches_take_turns_and_a_worker_dead_while_idle_is_restarted(pool, grid_scenario, days,
-                                                                                 caplog):
-    """Sequential one-day batches (the human phase) go to the worker idle longest, whose next day is
-    loaded; one killed after replying (during that load) is restarted before its next day, uncharged."""
-    choices, seeds, ref = days
-    one = [pool.run_days(grid_scenario, choices[d][None], [seeds[d]])[0] for d in (2, 3)]
-    took = [max(pool.slots, key=lambda w: w.started)]
-    one.append(pool.run_days(grid_scenario, choices[2][None], [seeds[2]])[0])
-    took.append(max(pool.slots, key=lambda w: w.started))
-    assert took[0] is not took[1]  # the two workers took turns
-    victim = took[1].proc.pid
-    os.kill(victim, signal.SIGKILL)  # it replied a moment ago: most likely inside its pre-load
-    restarts = pool.restarts
-    with caplog.at_level(logging.WARNING, logger="urb_jax"):
-        for d in (3, 2):  # the other worker, then the dead one's turn
-            one.append(pool.run_days(grid_scenario, choices[d][None], [seeds[d]])[0])
-    assert pool.restarts == restarts + 1 and victim not in [w.proc.pid for w in pool.slots]
-    (warning,) = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
-    assert "died while idle" in warning and "restarting it" in warning and "retrying" not in warning
-    assert all(a.same_as(ref[d]) for a, d in zip(one, (2, 3, 2, 3, 2), strict=True))
-
-
 def test_second_failure_raises_with_network_day_and_log(grid_scenario, tmp_path):
     with SumoPool(1, log_dir=tmp_path, day_timeout_s=0.05) as p:  # no day fits in 50 ms
         with pytest.raises(SumoDayError) as err:
