@@ -80,15 +80,11 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
         if state == "stopped" and run.kind == "train":
             resume_train(run.folder_names()[0], results_dir=str(results_dir), progress=progress,
                          executor=run.kwargs.get("executor"))
-        elif state == "stopped":  # a baseline has no checkpoint: it starts again in its own folder
-            run_baseline(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, overwrite=True,
-                         **shared, **run.kwargs)
-        elif state == "new" and run.kind == "train":
-            run_train(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **shared,
-                      **run.kwargs)
-        elif state == "new":
-            run_baseline(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **shared,
-                         **run.kwargs)
+        elif state != "done":  # a stopped baseline has no checkpoint: it starts again in its own folder
+            start = run_train if run.kind == "train" else run_baseline
+            again = {"overwrite": True} if state == "stopped" else {}
+            start(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **again, **shared,
+                  **run.kwargs)
         folders += [results_dir / name for name in run.folder_names()]
     return folders
 

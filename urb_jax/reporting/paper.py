@@ -107,13 +107,11 @@ def row_key(alg: str) -> str:
     return alg.removeprefix("baseline_")
 
 
-def our_rows(folders: list[Path], network: str) -> dict[str, pd.Series]:
-    """Our aggregated rows (mean, std over seeds) on one network, by paper-table key."""
-    runs = collect_folders(folders)
-    if runs.empty:
+def our_rows(ours: pd.DataFrame, network: str) -> dict[str, pd.Series]:
+    """Our aggregated rows (`aggregate`'s mean, std over seeds) on one network, by paper-table key."""
+    if ours.empty:
         return {}
-    table = aggregate(runs, METRICS)
-    table = table[table["network"] == network]
+    table = ours[ours["network"] == network]
     return {row_key(str(r["alg"] or r["algorithm"])): r for _, r in table.iterrows()}
 
 
@@ -186,16 +184,18 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
     out.append(f"Ours: {state}; {res.seeds_planned} seed(s) per train run planned. "
                f"Paper: {paper.get('paper_seeds', 'seeds not stated in what was found')}.")
     out.append("")
+    runs = collect_folders(res.folders) if res.folders else pd.DataFrame()  # read once per entry
     if paper.get("status") != "found":
         out += [f"**The paper's numbers: not found.** {paper.get('notes', '')}", ""]
-        if res.folders and collect_folders(res.folders).shape[0]:
+        if not runs.empty:
             out += ["Ours (mean ± std over seeds):", "", suite_tables(res.folders)]
     else:
         out += [f"The paper concludes: {paper['conclusion']}. Measure: {paper['measure']}.", ""]
         if paper.get("notes"):
             out += [f"Note: {paper['notes']}", ""]
+        ours = aggregate(runs, METRICS) if not runs.empty else pd.DataFrame()
         for table in paper["tables"]:
-            out += _table_markdown(table, our_rows(res.folders, table["network"]) if res.folders else {})
+            out += _table_markdown(table, our_rows(ours, table["network"]))
     if res.figures:
         out += ["Figures (travel times over days per group, phases as patches; written by the suite):", ""]
         out += [f"![{Path(f).stem}]({f})" for f in res.figures] + [""]
