@@ -140,13 +140,13 @@ def test_a_row_that_names_a_missing_row_says_which(scenario1_partly_run):
 
 def test_suite_paper_writes_the_page_from_a_results_folder(tmp_path, scenario1_partly_run, monkeypatch):
     """`urb-jax suite --paper`: finished runs found by the catalogue's run ids, the suite's figures
-    linked relative to the page, every other entry 'not run yet'."""
+    copied beside the page and linked relative to it, every other entry 'not run yet'."""
     import urb_jax.experiment.suite as suite
     from urb_jax.commands.cli import main
 
     def fake_report(title, folders, out_dir, preamble=""):  # the suite's report needs day records
         (Path(out_dir) / "figures").mkdir(parents=True)
-        (Path(out_dir) / "figures" / "saint_arnoult_ippo_config1.png").write_bytes(b"")
+        (Path(out_dir) / "figures" / "saint_arnoult_ippo_config1.png").write_bytes(b"png bytes")
         return Path(out_dir) / "README.md"
 
     monkeypatch.setattr(suite, "write_report", fake_report)
@@ -160,6 +160,9 @@ def test_suite_paper_writes_the_page_from_a_results_folder(tmp_path, scenario1_p
     assert "| `scenario1` | found | 2 of 21 runs finished |" in text  # IPPO's 5 seeds are one run, unfinished
     assert "| `adjusted_iql_ippo` | not found | 1 of 12 runs finished |" in text  # it shares the AON run
     assert "| `scenario2` | not found | not run yet |" in text
-    assert "![saint_arnoult_ippo_config1](../suite_scenario1/figures/saint_arnoult_ippo_config1.png)" in text
+    # the figure is copied next to the page and linked there: the page's links hold in the repository
+    assert "![saint_arnoult_ippo_config1](paper_figures/scenario1/saint_arnoult_ippo_config1.png)" in text
+    copied = out.parent / "paper_figures" / "scenario1" / "saint_arnoult_ippo_config1.png"
+    assert copied.read_bytes() == b"png bytes"
     assert "- **AON** (paper: AON CAVs faster than the drivers were as humans): t_CAV < t_pre: holds" in text
     assert not list(out.parent.glob(".*"))  # written atomically: no temporary file left beside it

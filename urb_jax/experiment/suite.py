@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from urb_jax.core.atomic import write_text
+from urb_jax.core.atomic import write_bytes, write_text
 from urb_jax.core.configio import find_config
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.run import resume_train, run_baseline, run_train
@@ -126,7 +126,8 @@ def paper_report(results_dir: str | Path, out: str | Path) -> Path:
     the page links. Written atomically."""
     results_dir, out = Path(results_dir), Path(out)
     paper = load_paper_numbers()
-    results = [_entry_results(entry, results_dir, out.parent) for entry in paper["entries"]]
+    figures_dir = out.parent / f"{out.stem}_figures"
+    results = [_entry_results(entry, results_dir, figures_dir) for entry in paper["entries"]]
     summary = "\n".join(
         f"| `{r.entry}` | {paper['entries'][r.entry]['status']} | "
         f"{f'{r.runs_done} of {r.runs_planned} runs finished' if r.runs_done else 'not run yet'} |"
@@ -135,14 +136,19 @@ def paper_report(results_dir: str | Path, out: str | Path) -> Path:
     return out
 
 
-def _entry_results(entry: str, results_dir: Path, page_dir: Path) -> EntryResults:
+def _entry_results(entry: str, results_dir: Path, figures_dir: Path) -> EntryResults:
+    """An entry's finished runs; its suite report's figures are copied to figures_dir/<entry>/ (next
+    to the page, so the page's links hold wherever the results folder is) and linked from there."""
     spec = load_suite(find_config("suites", entry))
     done = [r for r in spec.runs if status(results_dir, r) == "done"]
     folders = [results_dir / name for r in done for name in r.folder_names()]
     figures: list[str] = []
     if folders:
         report = write_report(spec.title, folders, results_dir / f"suite_{entry}", spec.preamble)
-        figures = [os.path.relpath(p, page_dir) for p in sorted((report.parent / "figures").glob("*.png"))]
+        for png in sorted((report.parent / "figures").glob("*.png")):
+            copy = figures_dir / entry / png.name
+            write_bytes(copy, png.read_bytes())
+            figures.append(os.path.relpath(copy, figures_dir.parent))
     seeds = [len(r.kwargs.get("seeds") or [0]) for r in spec.runs if r.kind == "train"]
     return EntryResults(entry, spec.title, folders, len(spec.runs), len(done), max(seeds, default=1), figures)
 
