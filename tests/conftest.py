@@ -29,3 +29,26 @@ def grid_scenario(_isolated_cache):
     from urb_jax.city.scenario import load_scenario
 
     return load_scenario("urb_grid")
+
+
+@pytest.fixture(scope="session")
+def tiny_iql_confs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """tests/test_hybrid_loop.py's tiny IQL hybrid run configs, written once per session."""
+    from test_hybrid_loop import tiny_iql_run
+
+    return tiny_iql_run(tmp_path_factory.mktemp("tiny_iql_confs"))
+
+
+@pytest.fixture(scope="session")
+def tiny_iql_reference(tiny_iql_confs, tmp_path_factory: pytest.TempPathFactory):
+    """(RunOutput, FakeExecutor): the tiny IQL run on `tiny_iql_confs`, uninterrupted, with the
+    executor that ran its days. Many tests compare a killed, resumed or reused run against exactly
+    this run; run once per test process (it is most of such a test's cost). Read it, never write."""
+    from test_hybrid_loop import FakeExecutor
+
+    from urb_jax.experiment.run import run_train
+
+    ex = FakeExecutor()
+    (out,) = run_train(alg="iql", exp_id="ref", results_dir=str(tmp_path_factory.mktemp("tiny_iql_ref")),
+                       progress=False, executor=ex, **tiny_iql_confs)
+    return out, ex

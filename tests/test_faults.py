@@ -40,10 +40,9 @@ def _train(confs, tmp_path, exp_id, executor=None, **kw):  # noqa: F811
 
 
 @pytest.fixture(scope="module")
-def reference(confs, tmp_path_factory):  # noqa: F811
-    root = tmp_path_factory.mktemp("ref")
-    ex = FakeExecutor()
-    (ref,) = _train(confs, root, "ref", ex)
+def reference(tiny_iql_reference):
+    """The run on `confs`, uninterrupted (tests/conftest.py)."""
+    ref, ex = tiny_iql_reference
     return {"digest": _digest(ref.folder), "days": sum(len(b) for b, _ in ex.batches)}
 
 

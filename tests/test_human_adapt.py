@@ -49,8 +49,8 @@ def confs(tmp_path_factory):
 
 
 def _train(confs, tmp_path, exp_id, executor, monkeypatch, **kw):
-    """Runs; returns the population's day counter just before the test days and after them, and
-    the executor's batches from the start of training on."""
+    """Runs; returns the run (a list of them for several seeds), the population's day counter
+    just before the test days and after them, and the executor's batches from training's start."""
     days: dict[str, np.ndarray] = {}
     real_test, real_start = HybridTrainer.test, HybridTrainer.start
 
@@ -66,9 +66,10 @@ def _train(confs, tmp_path, exp_id, executor, monkeypatch, **kw):
 
     monkeypatch.setattr(HybridTrainer, "test", spy_test)
     monkeypatch.setattr(HybridTrainer, "start", spy_start)
-    (out,) = run_train(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
-                       executor=executor, **confs, **kw)
-    return out, days, [len(b[0]) for b in executor.batches[days["first_batch"]:]]
+    outs = run_train(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
+                     executor=executor, **confs, **kw)
+    batches = [len(b[0]) for b in executor.batches[days["first_batch"]:]]
+    return (outs if len(outs) > 1 else outs[0]), days, batches
 
 
 def _replay_humans(folder: Path, params: HumanParams) -> tuple[int, int]:
@@ -107,17 +108,30 @@ def test_mode_sumo_population_lives_every_day_in_order(confs, tmp_path, monkeypa
     assert compared == (18 + E) * n_humans and matched == compared
 
 
-def test_hybrid_population_lives_surrogate_and_sumo_days(confs, tmp_path, monkeypatch):
+@pytest.fixture(scope="module")
+def two_seeds(confs, tmp_path_factory):
+    """Seeds 0 and 1 trained together (vmapped), uninterrupted, in hybrid mode: the population
+    test below and the resume test's reference (one run serves both)."""
+    root = tmp_path_factory.mktemp("two_seeds")
     ex = FakeExecutor()
-    out, days, batches = _train(confs, tmp_path, "hybrid", ex, monkeypatch)
-    cfg = json.loads((out.folder / "exp_config.json").read_text())
+    with pytest.MonkeyPatch.context() as mp:
+        outs, days, batches = _train(confs, root, "ref", ex, mp, seeds=[0, 1])
+    return outs, days, batches
+
+
+def test_hybrid_population_lives_surrogate_and_sumo_days(two_seeds):
+    outs, days, batches = two_seeds
+    cfg = json.loads((outs[0].folder / "exp_config.json").read_text())
     budget = cfg["surrogate_training_days"] + cfg["sumo_training_days"]
     assert cfg["surrogate_training_days"] > 0 and cfg["sumo_training_days"] > 0
-    # the population's day counter: every URB-equivalent training day, then the test days
-    assert days["before_test"].tolist() == [[budget]] and days["after_test"].tolist() == [[budget + E]]
-    assert batches == [1] * (cfg["sumo_training_days"] + E + 1)
-    rounds = pd.read_csv(out.folder / "rounds.csv")
-    assert np.isfinite(rounds["population_time_hdv"]).all()
+    # each seed's population day counter [S, 1]: every URB-equivalent training day, then the test days
+    assert days["before_test"].tolist() == [[budget]] * 2
+    assert days["after_test"].tolist() == [[budget + E]] * 2
+    # one day of each seed's population per batch (S = 2 rows), in order; then one AON day per group
+    assert batches == [2] * (cfg["sumo_training_days"] + E) + [1]
+    for out in outs:
+        rounds = pd.read_csv(out.folder / "rounds.csv")
+        assert np.isfinite(rounds["population_time_hdv"]).all()
 
 
 def test_frozen_humans_keep_p_copies(tmp_path, monkeypatch, confs):
@@ -128,10 +142,10 @@ def test_frozen_humans_keep_p_copies(tmp_path, monkeypatch, confs):
     assert "population_time_hdv" not in pd.read_csv(out.folder / "rounds.csv")
 
 
-def test_two_seeds_resume_like_uninterrupted(confs, tmp_path):
+def test_two_seeds_resume_like_uninterrupted(confs, tmp_path, two_seeds):
     """The population [S, 1] of two vmapped seeds survives a kill after round 1 exactly."""
+    ref = two_seeds[0]
     kw = dict(alg="iql", results_dir=str(tmp_path), progress=False, seeds=[0, 1], **confs)
-    ref = run_train(exp_id="ref", executor=FakeExecutor(), **kw)
     run_train(exp_id="killed", executor=FakeExecutor(), stop_after_round=1, **kw)
     resumed = resume_train("killed_s0", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
     for a, b in zip(ref, resumed, strict=True):

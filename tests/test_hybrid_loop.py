@@ -60,8 +60,10 @@ def tiny_iql_run(d: Path) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def confs(tmp_path_factory):
-    return tiny_iql_run(tmp_path_factory.mktemp("confs"))
+def confs(tiny_iql_confs):
+    """tiny_iql_run's configs (tests/conftest.py writes them once per session, so that runs on them
+    compare against the shared uninterrupted run, tiny_iql_reference)."""
+    return tiny_iql_confs
 
 
 def _train(confs, tmp_path, exp_id, executor=None, **kw):
@@ -69,9 +71,8 @@ def _train(confs, tmp_path, exp_id, executor=None, **kw):
                      executor=executor or FakeExecutor(), **confs, **kw)
 
 
-def test_loop_records_and_metric_provenance(confs, tmp_path):
-    ex = FakeExecutor()
-    (out,) = _train(confs, tmp_path, "run", executor=ex)
+def test_loop_records_and_metric_provenance(tiny_iql_reference):
+    out, ex = tiny_iql_reference  # the tiny run on `confs`, uninterrupted
     folder = out.folder
     rec = read_records(folder)
     cfg = json.loads((folder / "exp_config.json").read_text())
@@ -134,11 +135,11 @@ def test_loop_records_and_metric_provenance(confs, tmp_path):
     assert (folder / "plots" / "surrogate_error.png").is_file()
 
 
-def test_identical_test_days_run_once_with_the_same_metrics(confs, tmp_path):
+def test_identical_test_days_run_once_with_the_same_metrics(confs, tmp_path, tiny_iql_reference):
     """Greedy CAVs + frozen deterministic humans repeat one joint action every test day: with
     reuse on, SUMO runs each distinct test day once and the records and metrics are unchanged."""
-    plain_ex, reuse_ex = FakeExecutor(), FakeExecutor()
-    (plain,) = _train(confs, tmp_path, "plain", executor=plain_ex)
+    plain, plain_ex = tiny_iql_reference  # the same run with reuse off (hyb.json)
+    reuse_ex = FakeExecutor()
     (reuse,) = _train({**confs, "hybrid_conf": confs["hybrid_conf"].replace("hyb.json", "hyb_reuse.json")},
                       tmp_path, "reuse", executor=reuse_ex)
     n_plain = sum(len(b) for b, _ in plain_ex.batches)
@@ -175,8 +176,8 @@ def _metrics(folder):
 
 
 @pytest.mark.slow
-def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatch):
-    (ref,) = _train(confs, tmp_path, "ref")
+def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatch, tiny_iql_reference):
+    ref = tiny_iql_reference[0]  # the same run, uninterrupted
     ref_rec = read_records(ref.folder)
 
     # Kill 1: after round 1's checkpoint. Then kill 2 in the middle of round 3's SUMO batch, after
