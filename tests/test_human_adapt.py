@@ -49,8 +49,8 @@ def confs(tmp_path_factory):
 
 
 def _train(confs, tmp_path, exp_id, executor, monkeypatch, **kw):
-    """Runs; returns the run (a list of them for several seeds), the population's day counter
-    just before the test days and after them, and the executor's batches from training's start."""
+    """Runs; returns the runs (one per seed), the population's day counter just before the test
+    days and after them, and the executor's batches from training's start."""
     days: dict[str, np.ndarray] = {}
     real_test, real_start = HybridTrainer.test, HybridTrainer.start
 
@@ -69,7 +69,7 @@ def _train(confs, tmp_path, exp_id, executor, monkeypatch, **kw):
     outs = run_train(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
                      executor=executor, **confs, **kw)
     batches = [len(b[0]) for b in executor.batches[days["first_batch"]:]]
-    return (outs if len(outs) > 1 else outs[0]), days, batches
+    return outs, days, batches
 
 
 def _replay_humans(folder: Path, params: HumanParams) -> tuple[int, int]:
@@ -96,7 +96,7 @@ def _replay_humans(folder: Path, params: HumanParams) -> tuple[int, int]:
 
 def test_mode_sumo_population_lives_every_day_in_order(confs, tmp_path, monkeypatch):
     ex = FakeExecutor()
-    out, days, batches = _train(confs, tmp_path, "sumo", ex, monkeypatch, mode="sumo")
+    (out,), days, batches = _train(confs, tmp_path, "sumo", ex, monkeypatch, mode="sumo")
     cfg = json.loads((out.folder / "exp_config.json").read_text())
     assert cfg["sumo_training_days"] == 18
     # one population: every training and test day is its own batch (S = 1 seed), in order
@@ -136,7 +136,7 @@ def test_hybrid_population_lives_surrogate_and_sumo_days(two_seeds):
 
 def test_frozen_humans_keep_p_copies(tmp_path, monkeypatch, confs):
     frozen = {**confs, "task_conf": "test"}
-    out, days, batches = _train(frozen, tmp_path, "frozen", FakeExecutor(), monkeypatch, mode="sumo")
+    (out,), days, batches = _train(frozen, tmp_path, "frozen", FakeExecutor(), monkeypatch, mode="sumo")
     assert days["before_test"].tolist() == [[9, 9]]  # P copies, one day each per round
     assert batches == [P] * (9 + E // P) + [1]  # side by side; then the AON reference day
     assert "population_time_hdv" not in pd.read_csv(out.folder / "rounds.csv")

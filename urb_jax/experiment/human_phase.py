@@ -41,6 +41,7 @@ from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.hybrid.plan import HybridConfig
 from urb_jax.experiment.protocol import DayFn, train_humans, train_humans_on_model
+from urb_jax.experiment.run_folder import run_status
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.humans import HumanState
 from urb_jax.reporting.metrics import PRE_WINDOW
@@ -174,8 +175,7 @@ def drop_journal(root: Path, config: dict[str, Any]) -> None:
     if not holder or not (root / holder / JOURNAL_DIR).is_dir():
         return
     for name in config.get("run_folders", [holder]):
-        cfg = root / name / "exp_config.json"
-        if not cfg.is_file() or json.loads(cfg.read_text()).get("status") != "done":
+        if run_status(root / name) != "done":
             return
     shutil.rmtree(root / holder / JOURNAL_DIR, ignore_errors=True)
 
@@ -280,8 +280,7 @@ def first_reusable(results_dir: Path, candidates: Sequence[str], reuse: Callable
     What a suite uses to simulate each human phase once: runs that differ only in their CAVs
     (algorithm, CAV behaviour, seeds) share it, and `reuse` checks everything else."""
     for exp_id in candidates:
-        cfg = results_dir / exp_id / "exp_config.json"
-        if not cfg.is_file() or json.loads(cfg.read_text()).get("status") != "done":
+        if run_status(results_dir / exp_id) != "done":
             continue
         try:
             return exp_id, reuse(results_dir / exp_id)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import atexit
 import fcntl
 import functools
+import json
 import logging
 import os
 import platform
@@ -133,6 +134,12 @@ def write_outputs(folder: Path, human_days: int,
     metrics, records = write_run_metrics(folder, human_days, training_days)
     write_plots(folder, records, human_days, training_days, smooth_by=1)
     return metrics, phase_keys(records, human_days)
+
+
+def run_status(folder: Path) -> str | None:
+    """exp_config.json's status ("created", ..., "done": `mark_done`); None without the file."""
+    cfg = folder / CONFIG_FILE
+    return json.loads(cfg.read_text()).get("status") if cfg.is_file() else None
 
 
 def mark_done(folder: Path, config: dict[str, Any], **updates: Any) -> None:

@@ -23,7 +23,7 @@ from urb_jax.core.atomic import write_bytes, write_text
 from urb_jax.core.configio import find_config
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.run import resume_train, run_baseline, run_train
-from urb_jax.experiment.run_folder import CONFIG_FILE, train_run_names
+from urb_jax.experiment.run_folder import run_status, train_run_names
 from urb_jax.reporting.paper import EntryResults, load_paper_numbers, paper_markdown
 from urb_jax.reporting.suite_report import suite_figures, suite_tables
 
@@ -52,10 +52,7 @@ class SuiteRun:
 
 def status(results_dir: Path, run: SuiteRun) -> str:
     """'done' (every folder finished), 'stopped' (a folder exists, not finished) or 'new'."""
-    states = []
-    for name in run.folder_names():
-        cfg = results_dir / name / CONFIG_FILE
-        states.append(json.loads(cfg.read_text()).get("status") if cfg.is_file() else None)
+    states = [run_status(results_dir / name) for name in run.folder_names()]
     if all(s == "done" for s in states):
         return "done"
     return "stopped" if any(s is not None for s in states) else "new"
@@ -122,8 +119,9 @@ numbers) is recomputed on ours in both measures.
 def paper_report(results_dir: str | Path, out: str | Path) -> Path:
     """`out` (docs/paper.md): every catalogue entry (the entries of configs/paper/urb_paper.json)
     from its finished runs under results_dir, the paper's tables beside ours. An entry with
-    finished runs also gets its suite report (RESULTS_DIR/suite_<entry>: tables, figures), which
-    the page links. Written atomically."""
+    finished runs also gets its suite report (RESULTS_DIR/suite_<entry>: tables, figures), whose
+    figures are copied beside the page (<out stem>_figures/<entry>/) and linked there. Written
+    atomically."""
     results_dir, out = Path(results_dir), Path(out)
     paper = load_paper_numbers()
     figures_dir = out.parent / f"{out.stem}_figures"
