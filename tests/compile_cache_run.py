@@ -1,12 +1,15 @@
 """A tiny hybrid run on urb_grid with FakeDay for SUMO, in its own process (tests/test_compile.py
-runs it twice on one compile cache): `python tests/compile_cache_run.py OUT_DIR`."""
+runs it twice on one compile cache): `python tests/compile_cache_run.py OUT_DIR`. Writes
+OUT_DIR/compiles.json: the programs that asked the persistent cache and those it answered."""
 
 from __future__ import annotations
 
 import json
 import sys
+from collections import Counter
 from pathlib import Path
 
+import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -36,12 +39,19 @@ class FakeExecutor:
         pass
 
 
+REQUESTS = "/jax/compilation_cache/compile_requests_use_cache"
+HITS = "/jax/compilation_cache/cache_hits"
+
+
 def main(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
+    events: Counter = Counter()
+    jax.monitoring.register_event_listener(lambda event, **_: events.update([event]))
     (out / "hyb.json").write_text(json.dumps(HYBRID))
     (out / "iql.json").write_text(json.dumps(IQL))
     run_train(alg="iql", exp_id="run", results_dir=str(out), progress=False, task_conf="test",
               hybrid_conf=str(out / "hyb.json"), alg_conf=str(out / "iql.json"), executor=FakeExecutor())
+    (out / "compiles.json").write_text(json.dumps({"requests": events[REQUESTS], "hits": events[HITS]}))
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
-"""The surrogate leg's clock (urb_jax.experiment.hybrid.clock): a long round says early, from
-inside the jitted scan, what the training will cost."""
+"""The surrogate leg's clock (urb_jax.experiment.hybrid.clock): a long round says early what the
+training will cost, timed from the host between equal chunks of one compiled scan."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor
 
-from urb_jax.experiment.hybrid.clock import LINE_EVERY_S, IterationClock, fmt_duration
+from urb_jax.experiment.hybrid.clock import LINE_EVERY_S, IterationClock, chunk_len, fmt_duration, run_chunks
 
 
 class FakeTime:
@@ -27,10 +27,10 @@ def test_one_iteration_gives_the_estimate_and_the_hint_when_slow():
     t, notes = FakeTime(), []
     clock = IterationClock(n_iters=10, n_rounds=4, hint="use --alg-conf hybrid", note=notes.append, clock=t)
     clock.start_round(0)
-    clock(np.array([0, 0]))  # one call per seed under vmap: a repeated index counts once
+    clock(0)
     t.now = 500.0
-    clock(np.array([1, 1]))
-    clock(np.array(1))
+    clock(1)
+    clock(1)  # a repeated index counts once
     assert len(notes) == 1
     # 500 s an iteration: 5,000 s a round, 20,000 s for 4 rounds: slow, so the hint follows
     assert "takes 8.3 min" in notes[0] and "about 83.3 min" in notes[0] and "about 5.6 h" in notes[0]
@@ -44,6 +44,43 @@ def test_one_iteration_gives_the_estimate_and_the_hint_when_slow():
     t.now += 1
     clock(1)
     assert len(notes) == 2
+
+
+def test_chunks_cut_a_round_into_equal_parts():
+    assert [chunk_len(n) for n in (1, 2, 8, 16, 40, 37, 19, 64, 100)] == [1, 1, 1, 2, 5, 1, 1, 8, 10]
+    for n in range(1, 200):
+        L = chunk_len(n)
+        assert n % L == 0 and (n // L >= 8 or L == 1)
+
+
+def test_run_chunks_equals_one_scan_and_tells_the_clock_each_chunk():
+    """The chunked round carries and reports exactly what one scan over the same keys gives; the
+    clock hears each chunk's first iteration and the end; one program serves every chunk."""
+    import jax
+    import jax.numpy as jnp
+
+    def step(c, k):
+        x = c["x"] * 1.01 + jax.random.normal(k, (3,))
+        return {"x": x}, {"loss": x.sum(), "time_cav": x.mean()}
+
+    fn = jax.jit(jax.vmap(lambda c, ks: jax.lax.scan(step, c, ks)))
+    carry = {"x": jnp.ones((2, 3))}  # [S=2, 3]
+    keys = jax.vmap(lambda k: jax.random.split(k, 24))(jax.random.split(jax.random.PRNGKey(0), 2))
+    whole, m_whole = fn(carry, keys)
+    calls, programs = [], {}
+    class Spy(IterationClock):
+        def __call__(self, i: int) -> None:
+            calls.append(i)
+            super().__call__(i)
+
+    spy = Spy(24, 1, note=lambda _: None)
+    (chunked,), m = run_chunks(fn, (carry,), keys, spy, programs)
+    assert calls == [0, 3, 6, 9, 12, 15, 18, 21, 24] and len(programs) == 1
+    np.testing.assert_array_equal(np.asarray(chunked["x"]), np.asarray(whole["x"]))
+    assert m["loss"].shape == (2, 24)
+    np.testing.assert_array_equal(m["loss"], np.asarray(m_whole["loss"]))
+    (again,), _ = run_chunks(fn, (chunked,), keys, spy, programs)  # a later round: no new program
+    assert len(programs) == 1 and not np.array_equal(np.asarray(again["x"]), np.asarray(chunked["x"]))
 
 
 def test_a_fast_training_gets_no_hint():
@@ -70,6 +107,6 @@ def test_a_training_run_prints_its_estimate(tmp_path, capsys):
               alg_conf=str(tmp_path / "iql.json"), results_dir=str(tmp_path / "r"), progress=False,
               executor=FakeExecutor())
     err = capsys.readouterr().err
-    # 8 surrogate env-days a round over 2 envs of 2 days: 2 iterations a round, timed from the scan
+    # 8 surrogate env-days a round over 2 envs of 2 days: 2 iterations a round, two chunks of one
     lines = [line for line in err.splitlines() if line.startswith("estimate: one surrogate iteration")]
     assert len(lines) == 1 and "a round's 2 iterations" in lines[0]

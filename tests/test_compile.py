@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import json
 import os
 import subprocess
 import sys
@@ -196,12 +197,13 @@ def test_compile_cache_opt_out_stores_nothing(fresh_compile_cache, monkeypatch):
 
 
 def test_warm_compile_cache_gives_identical_records(tmp_path):
-    """Two processes, one compile cache: the second compiles nothing new (every program a cache
-    hit) and writes byte-identical records and metrics."""
+    """Two processes, one compile cache: the second compiles nothing (every program it asks for is
+    a cache hit: none carries a host callback, which JAX would compile afresh every process) and
+    writes byte-identical records and metrics."""
     env = {**os.environ, "URB_JAX_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(REPO)}
     env.pop(COMPILE_CACHE_ENV, None)
     script = Path(__file__).resolve().parent / "compile_cache_run.py"
-    digests, entries = [], []
+    digests, entries, compiles = [], [], []
     for run in ("cold", "warm"):
         out = tmp_path / run
         subprocess.run([sys.executable, str(script), str(out)], env=env, check=True, timeout=600)
@@ -209,5 +211,8 @@ def test_warm_compile_cache_gives_identical_records(tmp_path):
         assert len(files) == 2
         digests.append([hashlib.sha256(f.read_bytes()).hexdigest() for f in sorted(files)])
         entries.append(sorted(p.name for p in (tmp_path / "cache" / "jax").iterdir()))
+        compiles.append(json.loads((out / "compiles.json").read_text()))
     assert digests[0] == digests[1]
+    assert compiles[0]["requests"] > 20 and compiles[0]["hits"] < compiles[0]["requests"]
+    assert compiles[1]["hits"] == compiles[1]["requests"] == compiles[0]["requests"]
     assert len(entries[0]) > 20 and entries[1] == entries[0]

@@ -1,11 +1,13 @@
 """The surrogate leg's clock: how long a round and the whole training will take, said early.
 
 A URB config whose update count grows with the data (the TorchRL family's config1 for QMIX on a
-mid-size network) can spend many minutes on one round, all inside one jitted `lax.scan`, where
-Python cannot print. The scan calls `IterationClock` (a host callback that reads only the
-iteration index) as each iteration starts, so after the first iteration of the first round the
-run says what the training will cost on this machine, and a long round still prints a line every
-few minutes.
+mid-size network) can spend many minutes on one round of jitted `lax.scan`, where Python cannot
+print. So a round runs as equal chunks of one compiled scan (`run_chunks`), compiled before the
+clock starts, and `IterationClock` is told from the host as each chunk starts: after the first
+chunk of the first round the run says what the training will cost on this machine, and a long
+round still prints a line every few minutes. The clock used to be a host callback inside the
+scan; JAX's persistent compilation cache does not store a program with a callback, so every run
+and every `--resume` compiled the round again.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import jax
 import numpy as np
 
 LINE_EVERY_S = 300.0
@@ -28,8 +31,8 @@ def fmt_duration(seconds: float) -> str:
 
 
 class IterationClock:
-    """Called with the iteration index i as each iteration of a round's scan starts (once per seed
-    under vmap: repeats of an index are ignored)."""
+    """Called with the iteration index i as each chunk of a round's iterations starts, and with the
+    round's iteration count when it ends (a repeated index is ignored)."""
 
     def __init__(self, n_iters: int, n_rounds: int, hint: str = "",
                  note: Callable[[str], None] = print, clock: Callable[[], float] = time.monotonic) -> None:
@@ -42,8 +45,7 @@ class IterationClock:
     def start_round(self, r: int) -> None:
         self.round, self._seen = r, -1
 
-    def __call__(self, i: Any) -> None:
-        i = int(np.asarray(i).reshape(-1)[0])
+    def __call__(self, i: int) -> None:
         if i <= self._seen:
             return
         self._seen, now = i, self.clock()
@@ -54,7 +56,7 @@ class IterationClock:
         if not self.estimated:
             self.estimated = True
             self.note(self.estimate(per_iter))
-        elif now - self._last >= LINE_EVERY_S:
+        elif now - self._last >= LINE_EVERY_S and i < self.n_iters:
             self._last = now
             left = fmt_duration(per_iter * (self.n_iters - i))
             self.note(f"round {self.round + 1}/{self.n_rounds}: surrogate iteration {i}/{self.n_iters}, "
@@ -70,3 +72,46 @@ class IterationClock:
         if total > SLOW_S and self.hint:
             text += f". {self.hint}"
         return text
+
+
+CHUNKS = 8  # a round runs as at least this many chunks where its iteration count allows
+
+
+def chunk_len(n_iters: int, chunks: int = CHUNKS) -> int:
+    """The longest chunk that cuts a round's `n_iters` iterations into at least `chunks` equal
+    parts: every chunk of every round is then one compiled program."""
+    cap = max(1, n_iters // chunks)
+    return max(d for d in range(1, cap + 1) if n_iters % d == 0)
+
+
+Carry = tuple[Any, ...]
+
+
+def run_chunks(fn: Callable[..., tuple[Any, ...]], carry: Carry, keys: jax.Array, clock: IterationClock,
+               programs: dict[Any, Any]) -> tuple[Carry, dict[str, np.ndarray]]:
+    """`fn(*carry, keys[:, chunk]) -> (*carry, metrics)` over the iterations' keys [S, n, 2] in equal
+    chunks, the clock told as each chunk starts and when the last ends. The chunk program is
+    compiled ahead (`programs` keeps it, keyed by fn and argument types), so the clock times the
+    iterations, not the compilation. Returns the carry and the metrics [S, n, ...] as numpy."""
+    n = keys.shape[1]
+    L = chunk_len(n)
+    parts: list[dict[str, Any]] = []
+    for start in range(0, n, L):
+        chunk = keys[:, start:start + L]
+        program = _compiled(fn, (*carry, chunk), programs)
+        clock(start)
+        *out, metrics = program(*carry, chunk)
+        carry = tuple(jax.block_until_ready(out))
+        parts.append(metrics)
+    clock(n)
+    return carry, {k: np.concatenate([np.asarray(p[k]) for p in parts], axis=1) for k in parts[0]}
+
+
+def _compiled(fn: Callable[..., Any], args: tuple[Any, ...], programs: dict[Any, Any]) -> Any:
+    """fn's compiled program for `args`' shapes and types, compiled (or read from JAX's persistent
+    cache) the first time."""
+    sig = (id(fn), jax.tree_util.tree_structure(args),
+           tuple((x.shape, x.dtype, getattr(x, "weak_type", False)) for x in jax.tree_util.tree_leaves(args)))
+    if sig not in programs:
+        programs[sig] = fn.lower(*args).compile()
+    return programs[sig]

@@ -29,9 +29,11 @@ ActFn = Callable[[Runner, jax.Array, EnvState], tuple[jnp.ndarray, jnp.ndarray, 
 class TrainerFns(NamedTuple):
     """Jitted (except `split_p`) and vmapped over seeds."""
 
-    sur_round: Callable[[Runner, jax.Array], tuple[Runner, Metrics]]  # a round of surrogate iterations
-    # adapting humans: (runner [S], population [S], keys [S, 2]) -> (runner, population, metrics)
+    # surrogate iterations, one per key: (runner [S], keys [S, L, 2]) -> (runner, metrics [S, L])
+    sur_round: Callable[[Runner, jax.Array], tuple[Runner, Metrics]]
+    # adapting humans: (runner [S], population [S], keys [S, L, 2]) -> (runner, population, metrics)
     sur_round_adapt: Callable[[Runner, EnvState, jax.Array], tuple[Runner, EnvState, Metrics]]
+    iter_keys: Callable[[jax.Array], jax.Array]  # a round's key [S, 2] -> its iterations' keys [S, n, 2]
     update: Callable[[Runner, Day, jax.Array], tuple[Runner, Metrics]]  # one update on given days
     act_explore: ActFn  # exploring policies on the real days
     act_greedy: ActFn  # frozen test policies on the real days
@@ -46,43 +48,31 @@ class TrainerFns(NamedTuple):
 
 
 def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, static: Static, P: int,
-              n_iters_round: int, n_real: int | None = None,
-              on_iteration: Callable[[Any], None] | None = None) -> TrainerFns:
+              n_iters_round: int, n_real: int | None = None) -> TrainerFns:
     """The pieces for `learner` trained on the surrogate env `env`, P real days per round, played
     by `n_real` copies of the real humans (P: frozen humans, days side by side; 1: adapting humans,
-    one population living the days in order). `on_iteration(i)`: a host call as each surrogate
-    iteration i of a round starts (the trainer's clock; it reads no array of the training)."""
+    one population living the days in order).
+
+    A round's surrogate iterations take their keys as an argument (`iter_keys`), so the trainer can
+    run a round as chunks of one compiled scan and time them from the host: no host callback in
+    the program, which JAX's persistent compilation cache would refuse to store."""
     real_env = RoutingEnv(env.scenario, env.is_cav, human_init=env.human_init, **env_kwargs)  # SUMO days
     levels = dependency_levels(env)
     n_real = P if n_real is None else n_real
 
-    def _iters(key: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """The round's (iteration index [n], key [n, 2]) scan inputs."""
-        return jnp.arange(n_iters_round), jax.random.split(key, n_iters_round)
+    def _sur_round(runner: Runner, keys: jax.Array) -> tuple[Runner, Metrics]:
+        return jax.lax.scan(learner.iteration, runner, keys)
 
-    def _tick(i: jax.Array) -> None:
-        if on_iteration is not None:
-            jax.debug.callback(on_iteration, i)
-
-    def _sur_round(runner: Runner, key: jax.Array) -> tuple[Runner, Metrics]:
-        def body(runner: Runner, xs: tuple[jax.Array, jax.Array]) -> tuple[Runner, Metrics]:
-            _tick(xs[0])
-            return learner.iteration(runner, xs[1])
-
-        return jax.lax.scan(body, runner, _iters(key))
-
-    def _sur_round_adapt(runner: Runner, pop: EnvState, key: jax.Array) -> tuple[Runner, EnvState, Metrics]:
+    def _sur_round_adapt(runner: Runner, pop: EnvState, keys: jax.Array) -> tuple[Runner, EnvState, Metrics]:
         """Adapting humans: every iteration the learner's B envs start from the population's day,
         then the population lives the iteration's B x days_per_iter days in order (the exploring
         CAVs of the updated policy, the surrogate's times), so human learning days = URB's days."""
         n_envs = jax.tree_util.tree_leaves(runner.env_states)[0].shape[0]
         n_days = learner.days_per_iter * n_envs
 
-        def body(carry: tuple[Runner, EnvState], xs: tuple[jax.Array, jax.Array]
-                 ) -> tuple[tuple[Runner, EnvState], Metrics]:
+        def body(carry: tuple[Runner, EnvState], key: jax.Array) -> tuple[tuple[Runner, EnvState], Metrics]:
             runner, pop = carry
-            _tick(xs[0])
-            k_it, k_pop = jax.random.split(xs[1])
+            k_it, k_pop = jax.random.split(key)
             envs = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n_envs, *x.shape)), pop)
             runner, metrics = learner.iteration(runner._replace(env_states=envs), k_it)
             pops, days = collect(env, learner.policy(runner, True), k_pop,
@@ -91,7 +81,7 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
             return (runner, pop), {**metrics, "population_time_human": days.time_human.mean(),
                                    "population_time_cav": days.time_cav.mean()}
 
-        (runner, pop), metrics = jax.lax.scan(body, (runner, pop), _iters(key))
+        (runner, pop), metrics = jax.lax.scan(body, (runner, pop), keys)
         return runner, pop, metrics
 
     def _act(runner: Runner, keys: jax.Array, states: EnvState, explore: bool
@@ -125,6 +115,7 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
     return TrainerFns(
         sur_round=jax.jit(jax.vmap(_sur_round)),
         sur_round_adapt=jax.jit(jax.vmap(_sur_round_adapt)),
+        iter_keys=jax.jit(jax.vmap(lambda k: jax.random.split(k, n_iters_round))),
         update=jax.jit(jax.vmap(learner.update_from_days)),
         act_explore=jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, True))),
         act_greedy=jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, False))),

@@ -25,7 +25,7 @@ from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import RoundMeta, restore_round, save_round
 from urb_jax.experiment.human_phase import HumanPhase, calibrate, uncalibrated
-from urb_jax.experiment.hybrid.clock import IterationClock
+from urb_jax.experiment.hybrid.clock import IterationClock, run_chunks
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns
 from urb_jax.experiment.hybrid.plan import (
     MODES,
@@ -89,7 +89,7 @@ class Group:
     alg_config: AlgoConfig
     fns: TrainerFns
     keys: GroupKeys
-    clock: IterationClock  # times the surrogate iterations from inside the jitted round
+    clock: IterationClock  # times the surrogate iterations, chunk by chunk
 
     @property
     def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
@@ -140,7 +140,7 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
     clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg))
-    fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real, clock)
+    fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
     return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,
                  task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
@@ -186,6 +186,7 @@ class HybridTrainer:
         self.samples: list[SumoSample] = []
         self.rounds_logs: list[list[Row]] = [[] for _ in g.seeds]
         self.sumo_done = 0
+        self.programs: dict[Any, Any] = {}  # the surrogate leg's compiled chunk programs
 
     # ---- start, resume, checkpoint
     def fresh_state(self) -> TrainState:
@@ -255,18 +256,20 @@ class HybridTrainer:
         self.checkpoint(r + 1)
 
     def surrogate_leg(self, k_sur: jax.Array, rows: list[Row]) -> None:
-        """The round's learner iterations on the surrogate envs (one vmapped lax.scan)."""
+        """The round's learner iterations on the surrogate envs (chunks of one vmapped lax.scan)."""
         g, days = self.g, self.g.plan.surrogate_days
         t0 = time.perf_counter()
+        keys = g.fns.iter_keys(k_sur)  # [S, iters, 2]
         if g.adapt:  # adapting humans: the population lives the round's days too
             pop = jax.tree_util.tree_map(lambda x: x[:, 0], self.state.real)
-            runner, pop, m = g.fns.sur_round_adapt(self.state.runner, pop, k_sur)
+            (runner, pop), m = run_chunks(g.fns.sur_round_adapt, (self.state.runner, pop), keys, g.clock,
+                                          self.programs)
             real = jax.tree_util.tree_map(lambda x: x[:, None], pop)  # [S, 1]
             self.state = self.state._replace(runner=runner, real=real)
         else:
-            runner, m = g.fns.sur_round(self.state.runner, k_sur)
+            (runner,), m = run_chunks(g.fns.sur_round, (self.state.runner,), keys, g.clock, self.programs)
             self.state = self.state._replace(runner=runner)
-        m = {k: np.asarray(v).reshape(g.S, -1).mean(1) for k, v in m.items()}
+        m = {k: v.reshape(g.S, -1).mean(1) for k, v in m.items()}
         dt = time.perf_counter() - t0
         for i, row in enumerate(rows):
             row |= {"surrogate_days": days, "surrogate_s": dt,
