@@ -16,6 +16,7 @@ from test_catalogue import CATALOGUE, SUITES
 
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.suite import load_suite
+from urb_jax.reporting.leaderboard import collect_folders
 from urb_jax.reporting.paper import COLUMNS, EntryResults, load_paper_numbers, paper_file, paper_markdown
 from urb_jax.reporting.urb_names import baseline_names, train_names
 
@@ -104,8 +105,8 @@ def scenario1_partly_run(tmp_path):
 
 def test_the_page_puts_ours_beside_the_papers_rows_and_judges_each_conclusion(scenario1_partly_run):
     paper = load_paper_numbers()
-    results = [EntryResults("scenario1", "Scenario 1", scenario1_partly_run, 21, 2, 5),
-               EntryResults("scenario2", "Scenario 2", [], 7, 0, 5)]
+    results = [EntryResults("scenario1", "Scenario 1", collect_folders(scenario1_partly_run), 21, 2, 5),
+               EntryResults("scenario2", "Scenario 2", pd.DataFrame(), 7, 0, 5)]
     text = paper_markdown(results, paper, "# header")
     lines = text.splitlines()
     # the paper's IPPO row, then ours in both measures (mean ± std of the two seeds) right under it
@@ -133,7 +134,8 @@ def test_the_page_puts_ours_beside_the_papers_rows_and_judges_each_conclusion(sc
 def test_a_row_that_names_a_missing_row_says_which(scenario1_partly_run):
     """IPPO ran but AON did not: the AON comparison is 'not run yet (AON)', the t_pre one is judged."""
     paper = load_paper_numbers()
-    text = paper_markdown([EntryResults("scenario1", "S1", scenario1_partly_run[:2], 21, 1, 5)], paper, "")
+    ippo_only = collect_folders(scenario1_partly_run[:2])
+    text = paper_markdown([EntryResults("scenario1", "S1", ippo_only, 21, 1, 5)], paper, "")
     ippo = next(line for line in text.splitlines() if line.startswith("- **IPPO**"))
     assert "t_CAV > t_pre: holds in SUMO duration" in ippo and "t_CAV > AON t_CAV: not run yet (AON)" in ippo
 
@@ -166,3 +168,70 @@ def test_suite_paper_writes_the_page_from_a_results_folder(tmp_path, scenario1_p
     assert copied.read_bytes() == b"png bytes"
     assert "- **AON** (paper: AON CAVs faster than the drivers were as humans): t_CAV < t_pre: holds" in text
     assert not list(out.parent.glob(".*"))  # written atomically: no temporary file left beside it
+
+
+def _fake_report(title, folders, out_dir, preamble=""):
+    """The suite's report needs day records: one figure per network of the finished folders."""
+    (Path(out_dir) / "figures").mkdir(parents=True, exist_ok=True)
+    for net in {json.loads((Path(f) / "exp_config.json").read_text())["network"] for f in folders}:
+        (Path(out_dir) / "figures" / f"{net}.png").write_bytes(net.encode())
+    return Path(out_dir) / "README.md"
+
+
+def test_the_page_keeps_the_runs_of_earlier_generations(tmp_path, monkeypatch):
+    """A catalogue outlives a machine: runs finished in one results folder (another machine) stay on
+    the page, through its ledger, when it is generated again from another folder with other runs; a
+    run finished again replaces its recorded numbers; figures made before stay linked."""
+    import urb_jax.experiment.suite as suite
+    from urb_jax.commands.cli import main
+
+    monkeypatch.setattr(suite, "write_report", _fake_report)
+    ippo = train_names("ippo", "hybrid", "default", 6000, "config1")
+    first, second, docs = tmp_path / "machine1", tmp_path / "machine2", tmp_path / "docs"
+    for seed in range(5):
+        _run(first, f"s1_saint_arnoult_ippo_s{seed}", ippo, "saint_arnoult", "config1", t_pre=3.19,
+             t_CAV=3.2 + 0.01 * seed, t_pre_duration=3.16, t_CAV_duration=3.3, winrate=0.0)
+    _run(first, "saint_arnoult_aon", baseline_names("aon", 200), "saint_arnoult", "config1",
+         t_pre=3.19, t_CAV=3.05, t_pre_duration=3.16, t_CAV_duration=3.02, winrate=1.0)
+    out = docs / "paper.md"
+    assert main(["suite", "--paper", "--results-dir", str(first), "--out", str(out)]) == 0
+    page1 = out.read_text()
+    ledger = json.loads((docs / "paper_runs.json").read_text())["runs"]
+    # scenario1's IPPO (5 seed folders) and AON, and the adjusted table's AON (the same run, its own row)
+    assert sorted((r["entry"], r["exp_id"]) for r in ledger) == sorted(
+        [("scenario1", f"s1_saint_arnoult_ippo_s{s}") for s in range(5)]
+        + [("scenario1", "saint_arnoult_aon"), ("adjusted_iql_ippo", "saint_arnoult_aon")])
+    assert not any("folder" in r for r in ledger) and str(first) not in (docs / "paper_runs.json").read_text()
+    ippo_rows = [line for line in page1.splitlines() if line.startswith("|  | ours, ") and "| 5 |" in line]
+    assert len(ippo_rows) == 2
+
+    # machine 2: provins AON, and St. Arnoult's AON again with other numbers; machine 1's folder is gone
+    _run(second, "provins_aon", baseline_names("aon", 200), "provins", "config1",
+         t_pre=2.84, t_CAV=2.80, t_pre_duration=2.81, t_CAV_duration=2.76, winrate=1.0)
+    _run(second, "saint_arnoult_aon", baseline_names("aon", 200), "saint_arnoult", "config1",
+         t_pre=3.19, t_CAV=3.04, t_pre_duration=3.16, t_CAV_duration=3.01, winrate=1.0)
+    assert main(["suite", "--paper", "--results-dir", str(second), "--out", str(out)]) == 0
+    page2 = out.read_text()
+    assert "| `scenario1` | found | 3 of 21 runs finished |" in page2  # IPPO, AON here and Provins AON
+    for line in ippo_rows:  # machine 1's IPPO numbers, read from the ledger, unchanged
+        assert line in page2
+    aon = next(line for line in page2.splitlines() if line.startswith("- **AON**"))
+    assert "(3.0100 < 3.1600)" in aon  # St. Arnoult's AON: machine 2's numbers replace the recorded ones
+    provins = page2[page2.index("### Provins"):page2.index("### Ingolstadt")]
+    assert "2.7600" in provins
+    figures = sorted(p.name for p in (docs / "paper_figures" / "scenario1").iterdir())
+    assert figures == ["provins.png", "saint_arnoult.png"]  # machine 1's figure kept, machine 2's added
+    assert (docs / "paper_figures" / "scenario1" / "saint_arnoult.png").read_bytes() == b"saint_arnoult"
+    for name in ("provins", "saint_arnoult"):
+        assert f"paper_figures/scenario1/{name}.png" in page2
+    assert len(json.loads((docs / "paper_runs.json").read_text())["runs"]) == 9
+
+
+def test_a_broken_ledger_is_refused_naming_the_file(tmp_path, capsys):
+    from urb_jax.commands.cli import main
+
+    (tmp_path / "paper_runs.json").write_text('{"runs": [{"exp_id": "x"}]}')
+    rc = main(["suite", "--paper", "--results-dir", str(tmp_path), "--out", str(tmp_path / "paper.md")])
+    err = capsys.readouterr().err
+    assert rc == 2 and str(tmp_path / "paper_runs.json") in err and "Fix:" in err
+    assert not (tmp_path / "paper.md").exists()

@@ -7,6 +7,11 @@ own numbers ("t_CAV > t_pre": the CAVs stayed slower than as humans; "t_CAV > ao
 than the same table's AON row). Ours are the entry's finished runs, aggregated over seeds as the
 leaderboard does, in both trip measures (SUMO's trip duration, the published tables' measure, and
 URB's current travel time; docs/metrics.md), and each claim is recomputed on them.
+
+The page keeps a ledger beside it (docs/paper_runs.json): one row per finished run it has shown
+(its config keys and metrics, no path). A catalogue takes longer than one machine lives, so each
+generation shows the runs finished here and the ledger's runs finished elsewhere: the page fills in
+across machines and sessions instead of forgetting what ran before.
 """
 
 from __future__ import annotations
@@ -17,12 +22,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.errors import ConfigError
-from urb_jax.reporting.leaderboard import SHOWN, aggregate, collect_folders
-from urb_jax.reporting.suite_report import suite_tables
+from urb_jax.reporting.leaderboard import SHOWN, aggregate
+from urb_jax.reporting.suite_report import runs_tables
 
 PAPER_FILE = ("paper", "urb_paper.json")
 MEASURES = ("SUMO duration", "travel time")
@@ -164,12 +170,13 @@ def _not(op: str) -> str:
 
 @dataclass(frozen=True)
 class EntryResults:
-    """One catalogue entry as far as it has run: its finished run folders, how many runs it has and
-    how many finished, the seeds each train run plans, and links to the suite's figures."""
+    """One catalogue entry as far as it has run: its finished runs (`collect_folders` rows, here or
+    from the ledger), how many runs it has and how many finished, the seeds each train run plans,
+    and links to the suite's figures."""
 
     entry: str
     title: str
-    folders: list[Path]
+    runs: pd.DataFrame
     runs_planned: int
     runs_done: int
     seeds_planned: int
@@ -184,11 +191,11 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
     out.append(f"Ours: {state}; {res.seeds_planned} seed(s) per train run planned. "
                f"Paper: {paper.get('paper_seeds', 'seeds not stated in what was found')}.")
     out.append("")
-    runs = collect_folders(res.folders) if res.folders else pd.DataFrame()  # read once per entry
+    runs = res.runs
     if paper.get("status") != "found":
         out += [f"**The paper's numbers: not found.** {paper.get('notes', '')}", ""]
         if not runs.empty:
-            out += ["Ours (mean ± std over seeds):", "", suite_tables(res.folders)]
+            out += ["Ours (mean ± std over seeds):", "", runs_tables(runs)]
     else:
         out += [f"The paper concludes: {paper['conclusion']}. Measure: {paper['measure']}.", ""]
         if paper.get("notes"):
@@ -259,3 +266,46 @@ def paper_markdown(results: list[EntryResults], paper: dict[str, Any], header: s
     missing = {"status": "not found", "notes": "no entry in the data file."}
     body = [entry_markdown(r, entries.get(r.entry, missing)) for r in results]
     return "\n".join([header, *body])
+
+
+# ---- the ledger: the runs the page has shown, wherever they ran
+
+LEDGER_KEYS = ("entry", "exp_id")
+
+
+def ledger_path(page: str | Path) -> Path:
+    """docs/paper.md -> docs/paper_runs.json."""
+    page = Path(page)
+    return page.parent / f"{page.stem}_runs.json"
+
+
+def read_ledger(path: str | Path) -> pd.DataFrame:
+    """The ledger's rows (entry, exp_id, the run's config keys and metrics); empty when absent."""
+    path = Path(path)
+    if not path.is_file():
+        return pd.DataFrame(columns=list(LEDGER_KEYS))
+    try:
+        rows = json.loads(path.read_text())["runs"]
+    except (OSError, ValueError, KeyError, TypeError):
+        rows = None
+    if not isinstance(rows, list) or not all(isinstance(r, dict) and set(LEDGER_KEYS) <= set(r)
+                                             for r in rows):
+        raise ConfigError(f"{path}: not a runs ledger (key 'runs': rows with 'entry' and 'exp_id'). "
+                          "Fix: restore it from git (git checkout -- FILE), or move it away to start a new "
+                          "one (the page then shows only the runs finished here).")
+    return pd.DataFrame(rows, columns=list(dict.fromkeys([*LEDGER_KEYS, *(k for r in rows for k in r)])))
+
+
+def ledger_json(rows: pd.DataFrame) -> str:
+    """The ledger file's text: rows sorted by entry and run, NaN as null, no folder path."""
+    rows = rows.drop(columns=["folder"], errors="ignore").sort_values(list(LEDGER_KEYS), kind="stable")
+    records = [{k: _plain(v) for k, v in r.items() if not _missing(v)} for r in rows.to_dict("records")]
+    return json.dumps({"runs": records}, indent=1, sort_keys=True) + "\n"
+
+
+def _plain(v: Any) -> Any:
+    return v.item() if isinstance(v, np.generic) else v
+
+
+def _missing(v: Any) -> bool:
+    return v is None or (isinstance(v, float | np.floating) and math.isnan(v))

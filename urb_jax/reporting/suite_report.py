@@ -21,7 +21,13 @@ TABLE_COLUMNS = [("t_pre", "t_pre"), ("t_CAV", "t_CAV"), ("t_HDV_test", "t_HDV")
 
 def suite_tables(folders: list[Path]) -> str:
     """Markdown: a table per (network, task config), a row per algorithm, mean ± std over seeds."""
-    runs = collect_folders(folders)
+    return runs_tables(collect_folders(folders))
+
+
+def runs_tables(runs: pd.DataFrame) -> str:
+    """`suite_tables` of runs already read (`collect_folders` rows, or a ledger's)."""
+    if runs.empty:
+        return ""
     table = aggregate(runs)
     out = []
     for (net, task), g in table.groupby(["network", "task_config"], sort=True):
