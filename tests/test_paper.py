@@ -178,10 +178,11 @@ def _fake_report(title, folders, out_dir, preamble=""):
     return Path(out_dir) / "README.md"
 
 
-def test_the_page_keeps_the_runs_of_earlier_generations(tmp_path, monkeypatch):
+def test_the_page_keeps_the_runs_of_earlier_generations(tmp_path, monkeypatch, capsys):
     """A catalogue outlives a machine: runs finished in one results folder (another machine) stay on
     the page, through its ledger, when it is generated again from another folder with other runs; a
-    run finished again replaces its recorded numbers; figures made before stay linked."""
+    run finished again replaces its recorded numbers; figures made before stay linked; the suite
+    on the second machine skips the runs the ledger records."""
     import urb_jax.experiment.suite as suite
     from urb_jax.commands.cli import main
 
@@ -225,6 +226,25 @@ def test_the_page_keeps_the_runs_of_earlier_generations(tmp_path, monkeypatch):
     for name in ("provins", "saint_arnoult"):
         assert f"paper_figures/scenario1/{name}.png" in page2
     assert len(json.loads((docs / "paper_runs.json").read_text())["runs"]) == 9
+
+    # machine 2 continues the catalogue: the ledger's runs count as finished (elsewhere) and are skipped
+    ledger = str(docs / "paper_runs.json")
+    args = ["suite", "scenario1", "--only", "s1_saint_arnoult_ippo,saint_arnoult_aon,s1_provins_ippo",
+            "--results-dir", str(second), "--ledger", ledger, "--no-progress"]
+    capsys.readouterr()
+    assert main([*args, "--status"]) == 0
+    status = capsys.readouterr().out
+    for run, state in (("s1_saint_arnoult_ippo", "recorded"), ("saint_arnoult_aon", "done"),
+                       ("s1_provins_ippo", "new")):
+        assert re.search(rf"{run} +{state}", status)
+    assert "3 runs: 1 done, 1 recorded, 0 stopped, 1 new" in status
+    assert main([*args, "--status", "--ledger", "none"]) == 0
+    assert re.search(r"s1_saint_arnoult_ippo +new", capsys.readouterr().out)
+    args[3] = "s1_saint_arnoult_ippo,saint_arnoult_aon"
+    assert main(args) == 0  # nothing to simulate: both skipped
+    out_lines = capsys.readouterr().out
+    assert "s1_saint_arnoult_ippo (train): finished elsewhere (in the page's ledger), skipped" in out_lines
+    assert not any(p.name.startswith("s1_saint_arnoult_ippo") for p in second.iterdir())
 
 
 def test_a_broken_ledger_is_refused_naming_the_file(tmp_path, capsys):

@@ -26,6 +26,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="write docs/paper.md: every paper catalogue entry's finished runs under "
                              "RESULTS_DIR beside the paper's tables (configs/paper/urb_paper.json), a line "
                              "per row on whether the paper's conclusion holds; runs nothing")
+    parser.add_argument("--ledger", default="docs/paper_runs.json",
+                        help="the paper page's ledger (default docs/paper_runs.json): a catalogue entry's "
+                             "runs it records as finished on another machine are skipped; 'none' runs "
+                             "them here too")
+    parser.add_argument("--status", action="store_true",
+                        help="say which runs are finished here, finished elsewhere (the ledger), stopped "
+                             "or new, and exit")
     parser.add_argument("--list", action="store_true",
                         help="list the shipped suites (the paper's catalogue and the others) and exit")
     parser.set_defaults(func=run)
@@ -35,7 +42,17 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from urb_jax.core.configio import find_config
-    from urb_jax.experiment.suite import load_suite, paper_report, run_suite, select, status, write_report
+    from urb_jax.experiment.suite import (
+        STATES,
+        load_suite,
+        paper_report,
+        recorded_runs,
+        run_suite,
+        select,
+        status,
+        write_report,
+    )
+    from urb_jax.reporting.paper import load_paper_numbers
 
     if args.paper:
         print(f"paper: {paper_report(args.results_dir, args.out or 'docs/paper.md')}")
@@ -44,11 +61,21 @@ def run(args: argparse.Namespace) -> int:
         return _list(args.list)
     spec = select(load_suite(find_config("suites", args.suite)), args.only, args.networks_dir)
     results = Path(args.results_dir)
+    in_catalogue = args.suite in load_paper_numbers()["entries"]
+    use_ledger = in_catalogue and args.ledger.lower() != "none" and Path(args.ledger).is_file()
+    recorded = recorded_runs(args.ledger, args.suite) if use_ledger else set()
+    if args.status:
+        states = [status(results, r, recorded) for r in spec.runs]
+        for r, state in zip(spec.runs, states, strict=True):
+            print(f"{r.exp_id:40s} {state:9s} {STATES[state]}")
+        print(f"{len(spec.runs)} runs: " + ", ".join(f"{states.count(k)} {k}" for k in STATES)
+              + (f" (ledger {args.ledger})" if use_ledger else ""))
+        return 0
     if args.report_only:
         folders = [results / n for r in spec.runs if status(results, r) == "done" for n in r.folder_names()]
     else:
         folders = run_suite(spec.runs, results, progress=not args.no_progress,
-                            log=lambda line: print(line, flush=True))
+                            log=lambda line: print(line, flush=True), recorded=recorded)
     out = Path(args.out) if args.out else results / f"suite_{Path(args.suite).stem}"
     print(f"report: {write_report(spec.title, folders, out, spec.preamble)}")
     return 0

@@ -60,25 +60,37 @@ class SuiteRun:
         return train_run_names(self.exp_id, alg="", mode="", net="", task_stem="", seeds=seeds)
 
 
-def status(results_dir: Path, run: SuiteRun) -> str:
-    """'done' (every folder finished), 'stopped' (a folder exists, not finished) or 'new'."""
+STATES = {"done": "finished before, skipped",
+          "recorded": "finished elsewhere (in the page's ledger), skipped",
+          "stopped": "resuming", "new": "starting"}
+
+
+def status(results_dir: Path, run: SuiteRun, recorded: frozenset[str] | set[str] = frozenset()) -> str:
+    """'done' (every folder finished here), 'stopped' (a folder exists here, not finished),
+    'recorded' (no folder here, every folder's run in `recorded`: the paper page's ledger, finished
+    on another machine) or 'new'."""
     states = [run_status(results_dir / name) for name in run.folder_names()]
     if all(s == "done" for s in states):
         return "done"
-    return "stopped" if any(s is not None for s in states) else "new"
+    if any(s is not None for s in states):
+        return "stopped"
+    return "recorded" if set(run.folder_names()) <= set(recorded) else "new"
 
 
 def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = True,
-              log: Callable[[str], None] = print) -> list[Path]:
-    """Every run of the suite, finished ones skipped and stopped ones resumed; their folders."""
+              log: Callable[[str], None] = print, recorded: frozenset[str] | set[str] = frozenset()
+              ) -> list[Path]:
+    """Every run of the suite, finished ones skipped and stopped ones resumed; the folders finished
+    here. `recorded`: run folder names finished elsewhere (the paper page's ledger), skipped too."""
     results_dir = Path(results_dir)
     folders: list[Path] = []
     t0 = time.perf_counter()
     for i, run in enumerate(runs, 1):
-        state = status(results_dir, run)
-        log(f"suite: run {i}/{len(runs)} {run.exp_id} ({run.kind}): "
-            f"{ {'done': 'finished before, skipped', 'stopped': 'resuming', 'new': 'starting'}[state] }, "
+        state = status(results_dir, run, recorded)
+        log(f"suite: run {i}/{len(runs)} {run.exp_id} ({run.kind}): {STATES[state]}, "
             f"{time.perf_counter() - t0:.0f} s into the suite")
+        if state == "recorded":
+            continue
         # A human phase depends on the network, demand, humans and env seed, not on the CAVs: a new
         # run replays the first earlier run's that matches (checked by the run itself) instead of
         # simulating it again; the records are the same bytes (tests/test_suite.py).
@@ -94,6 +106,12 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
                   **run.kwargs)
         folders += [results_dir / name for name in run.folder_names()]
     return folders
+
+
+def recorded_runs(ledger_file: str | Path, entry: str) -> set[str]:
+    """The run folder names the paper page's ledger holds for catalogue entry `entry`."""
+    ledger = read_ledger(ledger_file)
+    return set(ledger.loc[ledger["entry"] == entry, "exp_id"])
 
 
 def write_report(title: str, folders: list[Path], out_dir: str | Path, preamble: str = "") -> Path:

@@ -79,7 +79,9 @@ def suite_figures(folders: list[Path], out_dir: Path) -> list[Path]:
 
     runs = collect_folders(folders)
     out_dir.mkdir(parents=True, exist_ok=True)
-    written = []
+    written: list[Path] = []
+    if runs.empty:
+        return written
     for key, g in runs.groupby(KEYS, sort=True):
         r = dict(zip(KEYS, key, strict=True))
         label = run_label(g.iloc[0])
