@@ -110,3 +110,16 @@ def test_a_training_run_prints_its_estimate(tmp_path, capsys):
     # 8 surrogate env-days a round over 2 envs of 2 days: 2 iterations a round, two chunks of one
     lines = [line for line in err.splitlines() if line.startswith("estimate: one surrogate iteration")]
     assert len(lines) == 1 and "a round's 2 iterations" in lines[0]
+
+
+def test_the_hybrid_hint_goes_to_urbs_own_config_only():
+    """A slow round with URB's config1 points to `--alg-conf hybrid`; with the hybrid config itself
+    (or any other), the hint says what else would shorten it."""
+    from urb_jax.algorithms.registry import load_algo_config
+    from urb_jax.experiment.hybrid.trainer import _slow_hint
+
+    assert "--alg-conf hybrid" in _slow_hint("mappo", load_algo_config("mappo", "config1"))
+    for conf in ("hybrid", "fast"):
+        hint = _slow_hint("mappo", load_algo_config("mappo", conf))
+        assert "--alg-conf hybrid" not in hint and "--train-days" in hint
+    assert "--alg-conf hybrid" not in _slow_hint("iql_star", load_algo_config("iql_star", "config1"))

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.algorithms.learner import Day
+from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
@@ -139,7 +140,7 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     plan = plan_rounds(cfg, mode, probe.days_per_iter)
     learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
-    clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg))
+    clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg, alg_config))
     fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
     return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,
@@ -148,9 +149,11 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
                  plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock)
 
 
-def _slow_hint(alg: str) -> str:
-    """What to do about a surrogate training that is slow on this machine."""
-    if (configs_dir() / "algo" / alg / "hybrid.json").is_file():
+def _slow_hint(alg: str, alg_config: AlgoConfig) -> str:
+    """What to do about a surrogate training that is slow on this machine: URB's own config (the
+    TorchRL family's config1) has a hybrid-sized alternative; any other config, a smaller budget."""
+    if ((configs_dir() / "algo" / alg / "hybrid.json").is_file()
+            and alg_config == load_algo_config(alg, "config1")):
         return (f"URB's TorchRL configs are update-bound on a CPU (their update count grows with the "
                 f"data): `--alg-conf hybrid` trains {alg} sized for the hybrid budget (docs/algorithms.md)")
     return "Fewer --train-days, a smaller config or a GPU would shorten it"
