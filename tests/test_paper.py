@@ -255,3 +255,26 @@ def test_a_broken_ledger_is_refused_naming_the_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and str(tmp_path / "paper_runs.json") in err and "Fix:" in err
     assert not (tmp_path / "paper.md").exists()
+
+
+def test_a_generation_that_would_drop_finished_runs_is_refused(tmp_path, capsys, monkeypatch):
+    """A page made before the ledger existed (as session 12's) shows finished runs that no results
+    folder here holds: generating it again from an empty folder would lose them, so it is refused
+    (exit 2, naming the entries and the fix) and the page is left as it was; --allow-fewer writes."""
+    import urb_jax.experiment.suite as suite
+    from urb_jax.commands.cli import main
+
+    monkeypatch.setattr(suite, "write_report", _fake_report)
+    page = tmp_path / "docs" / "paper.md"
+    page.parent.mkdir()
+    committed = ("# The URB paper next to urb-jax\n\n| entry | paper's numbers | ours |\n|---|---|---|\n"
+                 "| `scenario1` | found | not run yet |\n"
+                 "| `sensitivity_demand_half` | not found | 3 of 3 runs finished |\n")
+    page.write_text(committed)
+    args = ["suite", "--paper", "--results-dir", str(tmp_path / "empty"), "--out", str(page)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "sensitivity_demand_half (3 -> 0)" in err and "--allow-fewer" in err and str(page) in err
+    assert page.read_text() == committed and not (page.parent / "paper_runs.json").exists()
+    assert main([*args, "--allow-fewer"]) == 0
+    assert "| `sensitivity_demand_half` | not found | not run yet |" in page.read_text()

@@ -26,6 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="write docs/paper.md: every paper catalogue entry's finished runs under "
                              "RESULTS_DIR beside the paper's tables (configs/paper/urb_paper.json), a line "
                              "per row on whether the paper's conclusion holds; runs nothing")
+    parser.add_argument("--allow-fewer", action="store_true",
+                        help="with --paper: write the page even where it would show fewer finished runs "
+                             "of an entry than it does now (refused by default: results would be lost)")
     parser.add_argument("--ledger", default="docs/paper_runs.json",
                         help="the paper page's ledger (default docs/paper_runs.json): a catalogue entry's "
                              "runs it records as finished on another machine are skipped; 'none' runs "
@@ -55,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from urb_jax.reporting.paper import load_paper_numbers
 
     if args.paper:
-        print(f"paper: {paper_report(args.results_dir, args.out or 'docs/paper.md')}")
+        print(f"paper: {paper_report(args.results_dir, args.out or 'docs/paper.md', args.allow_fewer)}")
         return 0
     if args.list or not args.suite:
         return _list(args.list)

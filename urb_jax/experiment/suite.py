@@ -13,6 +13,7 @@ from __future__ import annotations
 import inspect
 import json
 import os
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -146,20 +147,24 @@ numbers) is recomputed on ours in both measures.
 """
 
 
-def paper_report(results_dir: str | Path, out: str | Path) -> Path:
+def paper_report(results_dir: str | Path, out: str | Path, allow_fewer: bool = False) -> Path:
     """`out` (docs/paper.md): every catalogue entry (the entries of configs/paper/urb_paper.json)
     from its finished runs, the paper's tables beside ours. The runs are those finished under
     results_dir and those the page's ledger (<out stem>_runs.json) recorded in earlier generations,
     on this machine or another; the ledger is written back with both. An entry with runs finished
     here also gets its suite report (RESULTS_DIR/suite_<entry>: tables, figures), whose figures are
     copied beside the page (<out stem>_figures/<entry>/, next to the figures copied before) and
-    linked there. Written atomically, the ledger first."""
+    linked there. Written atomically, the ledger first. A generation that would show an entry with
+    fewer finished runs than the page does now (its runs neither here nor in the ledger: a page
+    made before the ledger existed, or a ledger replaced) is refused unless `allow_fewer`."""
     results_dir, out = Path(results_dir), Path(out)
     paper = load_paper_numbers()
     figures_dir = out.parent / f"{out.stem}_figures"
     ledger_file = ledger_path(out)
     ledger = read_ledger(ledger_file)
     results = [_entry_results(entry, results_dir, figures_dir, ledger) for entry in paper["entries"]]
+    if not allow_fewer:
+        _refuse_fewer(out, {r.entry: r.runs_done for r in results}, results_dir, ledger_file)
     summary = "\n".join(
         f"| `{r.entry}` | {paper['entries'][r.entry]['status']} | "
         f"{f'{r.runs_done} of {r.runs_planned} runs finished' if r.runs_done else 'not run yet'} |"
@@ -170,6 +175,21 @@ def paper_report(results_dir: str | Path, out: str | Path) -> Path:
                                  summary=summary)
     write_text(out, paper_markdown(results, paper, header))
     return out
+
+
+_FINISHED = re.compile(r"^\| `([^`]+)` \| [^|]+ \| (\d+) of \d+ runs finished \|$", re.MULTILINE)
+
+
+def _refuse_fewer(out: Path, done: dict[str, int], results_dir: Path, ledger_file: Path) -> None:
+    """ConfigError when the page at `out` shows more finished runs of an entry than `done`."""
+    shown = {m[1]: int(m[2]) for m in _FINISHED.finditer(out.read_text())} if out.is_file() else {}
+    fewer = {e: (n, done.get(e, 0)) for e, n in shown.items() if done.get(e, 0) < n}
+    if fewer:
+        what = ", ".join(f"{e} ({was} -> {now})" for e, (was, now) in sorted(fewer.items()))
+        raise ConfigError(f"{out}: this generation would show fewer finished runs than the page does now: "
+                          f"{what}; those runs are neither under {results_dir} nor in {ledger_file}. "
+                          "Fix: run them under the results folder first (urb-jax suite ENTRY), point "
+                          "--results-dir at where they are, or pass --allow-fewer to drop them.")
 
 
 def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.DataFrame) -> EntryResults:
