@@ -86,6 +86,12 @@ def test_a_suite_simulates_each_human_phase_once(tmp_path):
     assert all(cav is not None for _, cav in ex[1].batches)  # no human day simulated again
     assert any(cav is None for _, cav in ex[2].batches)
     # (a replayed human phase gives the records a simulated one would: test_hybrid_seeds.py)
+    # another suite in the same folder (a second catalogue entry on the same network) replays it too
+    ex4 = FakeExecutor()
+    run_suite([SuiteRun("train", "later", {"alg": "iql_star", "executor": ex4, **args})],
+              tmp_path / "r", progress=False, log=lambda _: None)
+    later = json.loads((tmp_path / "r" / "later" / "exp_config.json").read_text())
+    assert later["human_phase_from"] == "first" and all(cav is not None for _, cav in ex4.batches)
 
 
 @pytest.mark.parametrize("runs, message", [

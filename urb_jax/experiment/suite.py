@@ -4,8 +4,9 @@ A suite is a list of `SuiteRun`s (a catalogue entry expands into them): each is 
 (its seeds trained together) or `urb-jax baseline`, with a fixed experiment id. Running the suite
 again skips the runs that finished, resumes the ones that were stopped (`resume_train`: their
 newest checkpoint), and starts the others; so a killed suite continues where it was. Every run
-prints its own progress; the suite adds a line per run. Each human phase is simulated once: a new
-run replays an earlier run's of the suite where they match (`human_phase.first_reusable`).
+prints its own progress; the suite adds a line per run. Each human phase is simulated once per
+results folder: a new run replays an earlier run's of the suite, or any other finished run's in
+the folder, where they match (`human_phase.first_reusable`).
 """
 
 from __future__ import annotations
@@ -78,6 +79,12 @@ def status(results_dir: Path, run: SuiteRun, recorded: frozenset[str] | set[str]
     return "recorded" if set(run.folder_names()) <= set(recorded) else "new"
 
 
+def finished_runs(results_dir: Path) -> list[str]:
+    """The finished run folders under results_dir, by name."""
+    return sorted(p.parent.name for p in results_dir.glob("*/exp_config.json")
+                  if run_status(p.parent) == "done")
+
+
 def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = True,
               log: Callable[[str], None] = print, recorded: frozenset[str] | set[str] = frozenset()
               ) -> list[Path]:
@@ -94,9 +101,11 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
             continue
         # A human phase depends on the network, demand, humans and env seed, not on the CAVs: a new
         # run replays the first earlier run's that matches (checked by the run itself) instead of
-        # simulating it again; the records are the same bytes (tests/test_suite.py).
+        # simulating it again, this suite's runs first, then any other finished run in the folder
+        # (another suite's: catalogue entries share networks); the records are the same bytes.
         earlier = [f.name for f in folders]
-        shared = {} if "human_phase_from" in run.kwargs else {"human_phase_candidates": earlier}
+        others = [name for name in finished_runs(results_dir) if name not in earlier]
+        shared = {} if "human_phase_from" in run.kwargs else {"human_phase_candidates": earlier + others}
         if state == "stopped" and run.kind == "train":
             resume_train(run.folder_names()[0], results_dir=str(results_dir), progress=progress,
                          executor=run.kwargs.get("executor"))
