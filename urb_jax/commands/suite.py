@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                              "them here too")
     parser.add_argument("--status", action="store_true",
                         help="say which runs are finished here, finished elsewhere (the ledger), stopped "
-                             "or new, and exit")
+                             "or new, and exit; without a suite, a line per catalogue entry")
     parser.add_argument("--list", action="store_true",
                         help="list the shipped suites (the paper's catalogue and the others) and exit")
     parser.set_defaults(func=run)
@@ -45,42 +45,65 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from urb_jax.core.configio import find_config
-    from urb_jax.experiment.suite import (
-        STATES,
-        load_suite,
-        paper_report,
-        recorded_runs,
-        run_suite,
-        select,
-        status,
-        write_report,
-    )
-    from urb_jax.reporting.paper import load_paper_numbers
+    from urb_jax.experiment.suite import load_suite, paper_report, run_suite, select, status, write_report
 
     if args.paper:
         print(f"paper: {paper_report(args.results_dir, args.out or 'docs/paper.md', args.allow_fewer)}")
         return 0
+    if args.status:
+        return _status(args)
     if args.list or not args.suite:
         return _list(args.list)
     spec = select(load_suite(find_config("suites", args.suite)), args.only, args.networks_dir)
     results = Path(args.results_dir)
-    in_catalogue = args.suite in load_paper_numbers()["entries"]
-    use_ledger = in_catalogue and args.ledger.lower() != "none" and Path(args.ledger).is_file()
-    recorded = recorded_runs(args.ledger, args.suite) if use_ledger else set()
-    if args.status:
-        states = [status(results, r, recorded) for r in spec.runs]
-        for r, state in zip(spec.runs, states, strict=True):
-            print(f"{r.exp_id:40s} {state:9s} {STATES[state]}")
-        print(f"{len(spec.runs)} runs: " + ", ".join(f"{states.count(k)} {k}" for k in STATES)
-              + (f" (ledger {args.ledger})" if use_ledger else ""))
-        return 0
     if args.report_only:
         folders = [results / n for r in spec.runs if status(results, r) == "done" for n in r.folder_names()]
     else:
         folders = run_suite(spec.runs, results, progress=not args.no_progress,
-                            log=lambda line: print(line, flush=True), recorded=recorded)
+                            log=lambda line: print(line, flush=True), recorded=_recorded(args, args.suite))
     out = Path(args.out) if args.out else results / f"suite_{Path(args.suite).stem}"
     print(f"report: {write_report(spec.title, folders, out, spec.preamble)}")
+    return 0
+
+
+def _recorded(args: argparse.Namespace, suite: str) -> set[str]:
+    """The runs of catalogue entry `suite` that the page's ledger records (none for other suites,
+    with --ledger none, or without a ledger file)."""
+    from pathlib import Path
+
+    from urb_jax.experiment.suite import recorded_runs
+    from urb_jax.reporting.paper import load_paper_numbers
+
+    if args.ledger.lower() == "none" or not Path(args.ledger).is_file():
+        return set()
+    return recorded_runs(args.ledger, suite) if suite in load_paper_numbers()["entries"] else set()
+
+
+def _status(args: argparse.Namespace) -> int:
+    """--status: each run of the suite (finished here, recorded in the ledger, stopped, new), or
+    without a suite a line per catalogue entry."""
+    from pathlib import Path
+
+    from urb_jax.core.configio import find_config
+    from urb_jax.experiment.suite import STATES, load_suite, select, status
+    from urb_jax.reporting.paper import load_paper_numbers
+
+    results = Path(args.results_dir)
+
+    def summary(states: list[str]) -> str:
+        return f"{len(states)} runs: " + ", ".join(f"{states.count(k)} {k}" for k in STATES)
+
+    if not args.suite:
+        for entry in load_paper_numbers()["entries"]:
+            runs = load_suite(find_config("suites", entry)).runs
+            print(f"{entry:28s} {summary([status(results, r, _recorded(args, entry)) for r in runs])}")
+        return 0
+    spec = select(load_suite(find_config("suites", args.suite)), args.only, args.networks_dir)
+    recorded = _recorded(args, args.suite)
+    states = [status(results, r, recorded) for r in spec.runs]
+    for r, state in zip(spec.runs, states, strict=True):
+        print(f"{r.exp_id:40s} {state:9s} {STATES[state]}")
+    print(summary(states) + (f" (ledger {args.ledger})" if recorded else ""))
     return 0
 
 
