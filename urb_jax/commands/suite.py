@@ -60,23 +60,25 @@ def run(args: argparse.Namespace) -> int:
         folders = [results / n for r in spec.runs if status(results, r) == "done" for n in r.folder_names()]
     else:
         folders = run_suite(spec.runs, results, progress=not args.no_progress,
-                            log=lambda line: print(line, flush=True), recorded=_recorded(args, args.suite))
+                            log=lambda line: print(line, flush=True),
+                            recorded=_recorded(args).get(args.suite, set()))
     out = Path(args.out) if args.out else results / f"suite_{Path(args.suite).stem}"
     print(f"report: {write_report(spec.title, folders, out, spec.preamble)}")
     return 0
 
 
-def _recorded(args: argparse.Namespace, suite: str) -> set[str]:
-    """The runs of catalogue entry `suite` that the page's ledger records (none for other suites,
-    with --ledger none, or without a ledger file)."""
+def _recorded(args: argparse.Namespace) -> dict[str, set[str]]:
+    """Catalogue entry -> its runs the page's ledger records (empty with --ledger none or without
+    a ledger file; a suite that is not a catalogue entry has none)."""
     from pathlib import Path
 
     from urb_jax.experiment.suite import recorded_runs
-    from urb_jax.reporting.paper import load_paper_numbers
+    from urb_jax.reporting.paper import load_paper_numbers, read_ledger
 
     if args.ledger.lower() == "none" or not Path(args.ledger).is_file():
-        return set()
-    return recorded_runs(args.ledger, suite) if suite in load_paper_numbers()["entries"] else set()
+        return {}
+    ledger = read_ledger(args.ledger)
+    return {entry: recorded_runs(ledger, entry) for entry in load_paper_numbers()["entries"]}
 
 
 def _status(args: argparse.Namespace) -> int:
@@ -88,7 +90,7 @@ def _status(args: argparse.Namespace) -> int:
     from urb_jax.experiment.suite import STATES, load_suite, select, status
     from urb_jax.reporting.paper import load_paper_numbers
 
-    results = Path(args.results_dir)
+    results, recorded = Path(args.results_dir), _recorded(args)
 
     def summary(states: list[str]) -> str:
         return f"{len(states)} runs: " + ", ".join(f"{states.count(k)} {k}" for k in STATES)
@@ -96,14 +98,14 @@ def _status(args: argparse.Namespace) -> int:
     if not args.suite:
         for entry in load_paper_numbers()["entries"]:
             runs = load_suite(find_config("suites", entry)).runs
-            print(f"{entry:28s} {summary([status(results, r, _recorded(args, entry)) for r in runs])}")
+            print(f"{entry:28s} {summary([status(results, r, recorded.get(entry, set())) for r in runs])}")
         return 0
     spec = select(load_suite(find_config("suites", args.suite)), args.only, args.networks_dir)
-    recorded = _recorded(args, args.suite)
-    states = [status(results, r, recorded) for r in spec.runs]
+    mine = recorded.get(args.suite, set())
+    states = [status(results, r, mine) for r in spec.runs]
     for r, state in zip(spec.runs, states, strict=True):
         print(f"{r.exp_id:40s} {state:9s} {STATES[state]}")
-    print(summary(states) + (f" (ledger {args.ledger})" if recorded else ""))
+    print(summary(states) + (f" (ledger {args.ledger})" if mine else ""))
     return 0
 
 

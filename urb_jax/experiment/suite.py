@@ -92,6 +92,7 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
     here. `recorded`: run folder names finished elsewhere (the paper page's ledger), skipped too."""
     results_dir = Path(results_dir)
     folders: list[Path] = []
+    before = finished_runs(results_dir)  # other suites' runs too: catalogue entries share networks
     t0 = time.perf_counter()
     for i, run in enumerate(runs, 1):
         state = status(results_dir, run, recorded)
@@ -101,11 +102,11 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
             continue
         # A human phase depends on the network, demand, humans and env seed, not on the CAVs: a new
         # run replays the first earlier run's that matches (checked by the run itself) instead of
-        # simulating it again, this suite's runs first, then any other finished run in the folder
-        # (another suite's: catalogue entries share networks); the records are the same bytes.
+        # simulating it again, this suite's runs first, then the runs finished in the folder before
+        # the suite started; the records are the same bytes.
         earlier = [f.name for f in folders]
-        others = [name for name in finished_runs(results_dir) if name not in earlier]
-        shared = {} if "human_phase_from" in run.kwargs else {"human_phase_candidates": earlier + others}
+        candidates = earlier + [name for name in before if name not in earlier]
+        shared = {} if "human_phase_from" in run.kwargs else {"human_phase_candidates": candidates}
         if state == "stopped" and run.kind == "train":
             resume_train(run.folder_names()[0], results_dir=str(results_dir), progress=progress,
                          executor=run.kwargs.get("executor"))
@@ -118,9 +119,8 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
     return folders
 
 
-def recorded_runs(ledger_file: str | Path, entry: str) -> set[str]:
-    """The run folder names the paper page's ledger holds for catalogue entry `entry`."""
-    ledger = read_ledger(ledger_file)
+def recorded_runs(ledger: pd.DataFrame, entry: str) -> set[str]:
+    """The run folder names the paper page's ledger (`read_ledger`) holds for catalogue entry `entry`."""
     return set(ledger.loc[ledger["entry"] == entry, "exp_id"])
 
 
