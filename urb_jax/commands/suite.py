@@ -32,7 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--ledger", default="docs/paper_runs.json",
                         help="the paper page's ledger (default docs/paper_runs.json): a catalogue entry's "
                              "runs it records as finished on another machine are skipped; 'none' runs "
-                             "them here too")
+                             "them here too. --paper reads and writes the ledger beside its page "
+                             "(paper_runs.json next to --out), not this one")
     parser.add_argument("--status", action="store_true",
                         help="say which runs are finished here, finished elsewhere (the ledger), stopped "
                              "or new, and exit; without a suite, a line per catalogue entry")
