@@ -79,7 +79,9 @@ def externalities(travel_time: Callable[[jnp.ndarray], jnp.ndarray], choices: jn
     depend on i's route). Under a congestion model (flows never speed anyone up) they are >= 0."""
     onehot = jax.nn.one_hot(choices, k, dtype=jnp.float32)
     times, vjp = jax.vjp(travel_time, onehot)
-    base = travel_time(jnp.zeros_like(onehot))  # [N] the route-independent part of each time
+    # [N] the route-independent part of each time; the barrier keeps XLA from constant-folding
+    # the model at zero flows while compiling (a scatter-add it took > 1 s to fold on ingolstadt)
+    base = travel_time(jax.lax.optimization_barrier(jnp.zeros_like(onehot)))
     is_cav = jnp.asarray(is_cav, dtype=bool)
     member = jnp.stack([is_cav, ~is_cav, jnp.ones_like(is_cav)]).astype(times.dtype)  # [3, N]
     grads = jax.vmap(lambda m: vjp(m)[0])(member)  # [3, N, K]
