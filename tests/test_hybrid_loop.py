@@ -209,3 +209,20 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
     pd.testing.assert_frame_equal(read_records(final.folder), ref_rec)
     pd.testing.assert_frame_equal(pd.read_csv(final.folder / "rounds.csv").filter(like="time"),
                                   pd.read_csv(ref.folder / "rounds.csv").filter(like="time"))
+
+
+def test_sumo_row_under_full_autonomy_has_no_human_mean():
+    """A day without humans (Scenario 2) has no human mean: NaN, and no numpy warning in the log."""
+    import warnings
+
+    from urb_jax.experiment.hybrid.trainer import sumo_row
+
+    t = np.array([[3.0, 4.0, 5.0], [3.0, 5.0, 7.0]])  # [P, N] SUMO minutes
+    pred = t * 1.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        full = sumo_row(t, pred, 2, 0.5, np.ones(3, bool), np.arange(3))
+        mixed = sumo_row(t, pred, 2, 0.5, np.array([True, False, False]), np.array([0]))
+    assert np.isnan(full["sumo_time_hdv"]) and full["sumo_time_cav"] == pytest.approx(27 / 6)
+    assert mixed["sumo_time_hdv"] == pytest.approx((4 + 5 + 5 + 7) / 4)
+    assert mixed["sumo_time_cav"] == pytest.approx(3.0)

@@ -488,8 +488,8 @@ def sumo_row(t: np.ndarray, pred: np.ndarray, P: int, dt: float, is_cav: np.ndar
              cav_index: np.ndarray) -> Row:
     """A seed's rounds.csv SUMO columns from its SUMO times t and the surrogate's prediction pred [P, N]."""
     sumo_cav = float(t[:, cav_index].mean()) if cav_index.size else float("nan")
-    return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": sumo_cav,
-            "sumo_time_hdv": float(t[:, ~is_cav].mean()),
+    sumo_hdv = float(t[:, ~is_cav].mean()) if (~is_cav).any() else float("nan")  # none under full autonomy
+    return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": sumo_cav, "sumo_time_hdv": sumo_hdv,
             "surrogate_mean_error": float((pred.mean(1) - t.mean(1)).mean() / t.mean()),
             "surrogate_mape": float(np.mean(np.abs(pred - t) / t))}
 
