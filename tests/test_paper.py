@@ -123,12 +123,37 @@ def test_the_page_puts_ours_beside_the_papers_rows_and_judges_each_conclusion(sc
             "holds in travel time (3.1600 > 3.0500)") in ippo
     aon = next(line for line in lines if line.startswith("- **AON**"))
     assert "t_CAV < t_pre: holds in SUMO duration (3.0200 < 3.1600)" in aon
+    # where ours contradict the paper, the entry's why_not says why (once); where all holds, nothing
+    assert ippo.count("*Why ours differ:*") == 1
+    why = paper["entries"]["scenario1"]["why_not"]["ippo: t_CAV > t_pre"]
+    assert ippo.endswith("*Why ours differ:* " + why)
+    assert "Why" not in aon
     # QMIX did not run, Provins did not run, Scenario 2's numbers were not found
     assert next(line for line in lines if line.startswith("- **QMIX**")).endswith(": not run yet.")
     provins = text[text.index("### Provins"):text.index("### Ingolstadt")]
     assert provins.count("not run yet") == 6 + 7  # six table rows (Human has none), seven conclusion lines
     s2 = text[text.index("## `scenario2`"):]
     assert "**The paper's numbers: not found.**" in s2 and "Ours: not run yet" in s2
+
+
+def test_a_contradicted_claim_without_an_explanation_says_it_is_not_established(tmp_path,
+                                                                                 scenario1_partly_run):
+    path = _edited(tmp_path, lambda d: d["entries"]["scenario1"].pop("why_not"))
+    text = paper_markdown([EntryResults("scenario1", "S1", collect_folders(scenario1_partly_run), 21, 2, 5)],
+                          load_paper_numbers(path), "")
+    ippo = next(line for line in text.splitlines() if line.startswith("- **IPPO**"))
+    assert ippo.endswith("**does not hold** in travel time (3.1600 ≤ 3.1900); t_CAV > AON t_CAV: holds in "
+                         "SUMO duration (3.3200 > 3.0200); holds in travel time (3.1600 > 3.0500). "
+                         "*Why ours differ:* not established yet.")
+
+
+def test_an_explanation_for_a_claim_no_row_makes_is_refused(tmp_path):
+    vdn = {"vdn: t_CAV > t_pre": "VDN is not in the paper's table"}
+    path = _edited(tmp_path, lambda d: d["entries"]["scenario1"]["why_not"].update(vdn))
+    message = r"scenario1\.why_not: \['vdn: t_CAV > t_pre'\] are not claims"
+    with pytest.raises(ConfigError, match=message) as err:
+        load_paper_numbers(path)
+    assert str(path) in str(err.value) and "Fix:" in str(err.value)
 
 
 def test_a_row_that_names_a_missing_row_says_which(scenario1_partly_run):

@@ -6,7 +6,9 @@ per network, a row per algorithm, the paper's columns), each with the address it
 own numbers ("t_CAV > t_pre": the CAVs stayed slower than as humans; "t_CAV > aon.t_CAV": slower
 than the same table's AON row). Ours are the entry's finished runs, aggregated over seeds as the
 leaderboard does, in both trip measures (SUMO's trip duration, the published tables' measure, and
-URB's current travel time; docs/metrics.md), and each claim is recomputed on them.
+URB's current travel time; docs/metrics.md), and each claim is recomputed on them. Where ours
+contradict a claim, the entry's `why_not` says why, with its evidence, or the page says that the
+reason is not established yet.
 
 The page keeps a ledger beside it (docs/paper_runs.json): one row per finished run it has shown
 (its config keys and metrics, no path). A catalogue takes longer than one machine lives, so each
@@ -71,6 +73,13 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
             raise ConfigError(f"{where}: status is 'found' (with tables) or 'not found'. Fix: set it.")
         for i, t in enumerate(e["tables"]):
             _check_table(t, f"{where}.tables[{i}]")
+        claims = {key for t in e["tables"] for alg, row in t["rows"].items()
+                  for c in row.get("claims", []) for key in (claim_text(c), f"{alg}: {claim_text(c)}")}
+        unknown = sorted(set(e.get("why_not", {})) - claims)
+        if unknown:
+            raise ConfigError(f"{where}.why_not: {unknown} are not claims of this entry's rows. "
+                              f"Fix: key each explanation by a claim ('t_CAV > t_pre') or a row's claim "
+                              f"('qmix: t_CAV < t_pre'), one of {sorted(claims)}.")
     return data
 
 
@@ -139,6 +148,19 @@ def _cell(row: pd.Series, column: str, measure: int) -> str:
     return f"{mean:.4f}" + (f" ± {std:.4f}" if row["runs"] > 1 and std == std else "")
 
 
+def claim_text(claim: list[str]) -> str:
+    """A claim as urb_paper.json's `why_not` keys it: 't_CAV > aon.t_CAV' (every row's), or
+    prefixed by a row, 'qmix: t_CAV < t_pre' (that row's)."""
+    return " ".join(claim)
+
+
+def claim_fails(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> bool:
+    """Ours contradict the claim in at least one trip measure."""
+    return any(res is not None and not res[0] for res in (
+        _evaluate(claim, alg, lambda key, col, m=m: our_value(ours.get(key), col, m))
+        for m in range(len(MEASURES))))
+
+
 def claim_line(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> str:
     """'t_CAV > t_pre: holds in SUMO duration (3.3512 > 3.1585), does not hold in travel time (...)'."""
     left, op, right = claim
@@ -202,14 +224,14 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
             out += [f"Note: {paper['notes']}", ""]
         ours = aggregate(runs, METRICS) if not runs.empty else pd.DataFrame()
         for table in paper["tables"]:
-            out += _table_markdown(table, our_rows(ours, table["network"]))
+            out += _table_markdown(table, our_rows(ours, table["network"]), paper.get("why_not", {}))
     if res.figures:
         out += ["Figures (travel times over days per group, phases as patches; written by the suite):", ""]
         out += [f"![{Path(f).stem}]({f})" for f in res.figures] + [""]
     return "\n".join(out)
 
 
-def _table_markdown(table: dict[str, Any], ours: dict[str, pd.Series]) -> list[str]:
+def _table_markdown(table: dict[str, Any], ours: dict[str, pd.Series], why_not: dict[str, str]) -> list[str]:
     cols = list(COLUMNS)
     out = [f"### {table['name']} (`{table['network']}`)", "",
            f"Paper: \"{table['caption']}\", [source]({table['source']})"
@@ -237,13 +259,15 @@ def _table_markdown(table: dict[str, Any], ours: dict[str, pd.Series]) -> list[s
             name = ""
     out += ["", "Does the paper's conclusion hold here?", ""]
     for alg, row in table["rows"].items():
-        out.append(_conclusion(alg, row, ours))
+        out.append(_conclusion(alg, row, ours, why_not))
     for alg in extra:
         out.append(f"- **{NAMES.get(alg, alg)}**: ours only (not in the paper's table).")
     return [*out, ""]
 
 
-def _conclusion(alg: str, row: dict[str, Any], ours: dict[str, pd.Series]) -> str:
+def _conclusion(alg: str, row: dict[str, Any], ours: dict[str, pd.Series], why_not: dict[str, str]) -> str:
+    """The row's conclusion line; where ours contradict a claim, why (the entry's `why_not`, or
+    'not established yet': the page says so rather than leave the difference unexplained)."""
     head = f"- **{NAMES.get(alg, alg)}** (paper: {row['conclusion']})"
     if alg == "human":
         pre = [our_value(next(iter(ours.values()), None), "t_pre", m) for m in range(2)]
@@ -253,7 +277,10 @@ def _conclusion(alg: str, row: dict[str, Any], ours: dict[str, pd.Series]) -> st
             f"{v:.4f} in {name}" for v, name in zip(pre, MEASURES, strict=True) if v is not None) + "."
     if alg not in ours:
         return f"{head}: not run yet."
-    return f"{head}: " + "; ".join(claim_line(c, alg, ours) for c in row["claims"]) + "."
+    line = f"{head}: " + "; ".join(claim_line(c, alg, ours) for c in row["claims"]) + "."
+    failed = [claim_text(c) for c in row["claims"] if claim_fails(c, alg, ours)]
+    whys = dict.fromkeys(why_not.get(f"{alg}: {c}", why_not.get(c, "not established yet.")) for c in failed)
+    return line + "".join(f" *Why ours differ:* {why}" for why in whys)
 
 
 def _paper_num(x: float | None) -> str:
