@@ -154,11 +154,16 @@ def claim_text(claim: list[str]) -> str:
     return " ".join(claim)
 
 
+def _our_verdicts(claim: list[str], alg: str,
+                  ours: dict[str, pd.Series]) -> list[tuple[bool, float, float] | None]:
+    """The claim evaluated on ours, one `_evaluate` result per trip measure (MEASURES' order)."""
+    return [_evaluate(claim, alg, lambda key, col, m=m: our_value(ours.get(key), col, m))
+            for m in range(len(MEASURES))]
+
+
 def claim_fails(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> bool:
     """Ours contradict the claim in at least one trip measure."""
-    return any(res is not None and not res[0] for res in (
-        _evaluate(claim, alg, lambda key, col, m=m: our_value(ours.get(key), col, m))
-        for m in range(len(MEASURES))))
+    return any(res is not None and not res[0] for res in _our_verdicts(claim, alg, ours))
 
 
 def claim_line(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> str:
@@ -166,8 +171,7 @@ def claim_line(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> str:
     left, op, right = claim
     label = f"{_term(left, alg)} {op} {_term(right, alg)}"
     parts = []
-    for m, name in enumerate(MEASURES):
-        res = _evaluate(claim, alg, lambda key, col, m=m: our_value(ours.get(key), col, m))
+    for name, res in zip(MEASURES, _our_verdicts(claim, alg, ours), strict=True):
         if res is None:
             missing = [k for k in {_operand(left, alg)[0], _operand(right, alg)[0]} if k not in ours]
             parts.append(f"not run yet ({', '.join(NAMES.get(k, k) for k in sorted(missing))})" if missing
