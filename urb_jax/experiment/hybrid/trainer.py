@@ -463,11 +463,14 @@ def aon_same_humans(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray, exec
     not in the records or in any metric."""
     mixed = np.where(is_cav, aon_routes(scn.fft, scn.route_valid), choices)
     res = executor.run_days(scn, mixed[None], [env_seed], is_cav=is_cav)[0]
-    nan = float("nan")
-    return {"t_CAV": float(res.travel_time[is_cav].mean()) if is_cav.any() else nan,
-            "t_HDV": float(res.travel_time[~is_cav].mean()) if (~is_cav).any() else nan,
+    return {"t_CAV": _group_mean(res.travel_time[is_cav]), "t_HDV": _group_mean(res.travel_time[~is_cav]),
             # the published tables' measure (urb_jax.metrics.DURATION_COLUMNS)
-            "t_CAV_duration": float(np.nanmean(res.duration[is_cav]) / 60) if is_cav.any() else nan}
+            "t_CAV_duration": _group_mean(res.duration[is_cav], np.nanmean) / 60}
+
+
+def _group_mean(x: np.ndarray, reduce: Callable[[np.ndarray], Any] = np.mean) -> float:
+    """A group's mean time, NaN for a group nobody is in (no humans under full autonomy)."""
+    return float(reduce(x)) if x.size else float("nan")
 
 
 def record_days(writer: RecordsWriter, first_day_minus1: int, phase: str, choices: np.ndarray,
@@ -487,9 +490,8 @@ def record_days(writer: RecordsWriter, first_day_minus1: int, phase: str, choice
 def sumo_row(t: np.ndarray, pred: np.ndarray, P: int, dt: float, is_cav: np.ndarray,
              cav_index: np.ndarray) -> Row:
     """A seed's rounds.csv SUMO columns from its SUMO times t and the surrogate's prediction pred [P, N]."""
-    sumo_cav = float(t[:, cav_index].mean()) if cav_index.size else float("nan")
-    sumo_hdv = float(t[:, ~is_cav].mean()) if (~is_cav).any() else float("nan")  # none under full autonomy
-    return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": sumo_cav, "sumo_time_hdv": sumo_hdv,
+    return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": _group_mean(t[:, cav_index]),
+            "sumo_time_hdv": _group_mean(t[:, ~is_cav]),
             "surrogate_mean_error": float((pred.mean(1) - t.mean(1)).mean() / t.mean()),
             "surrogate_mape": float(np.mean(np.abs(pred - t) / t))}
 
