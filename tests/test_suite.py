@@ -65,6 +65,33 @@ def test_suite_resumes_skips_and_reports(tmp_path):
         "urb_grid_baseline_aon_test.png", "urb_grid_iql_star_test.png"]
 
 
+def test_a_run_another_process_is_writing_is_running_not_stopped(tmp_path):
+    """--status tells a run being written now from a stopped one (same unfinished folder), and the
+    suite refuses to touch it, naming the writer, instead of resuming it under it."""
+    import subprocess
+
+    from urb_jax.core.errors import UrbJaxError
+
+    results = tmp_path / "results"
+    (results / "aon").mkdir(parents=True)
+    (results / "aon" / "exp_config.json").write_text(json.dumps({"status": "created"}))
+    run = SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test", "day_fn": FakeDay()})
+    assert status(results, run) == "stopped"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, pathlib; from urb_jax.experiment.run_folder import lock_run; "
+         f"lock_run(pathlib.Path({str(results / 'aon')!r})); print('locked', flush=True); sys.stdin.read()"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        assert status(results, run) == "running"
+        with pytest.raises(UrbJaxError, match=f"being written by process {holder.pid}"):
+            run_suite([run], results, progress=False, log=lambda _: None)
+        assert json.loads((results / "aon" / "exp_config.json").read_text()) == {"status": "created"}
+    finally:
+        holder.communicate("")
+    assert status(results, run) == "stopped"  # the writer ended: resumable again
+
+
 @pytest.mark.slow
 def test_a_suite_simulates_each_human_phase_once(tmp_path):
     """Two train runs on the same humans: the second replays the first's human phase (its executor

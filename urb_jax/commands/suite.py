@@ -35,8 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                              "them here too. --paper reads and writes the ledger beside its page "
                              "(paper_runs.json next to --out), not this one")
     parser.add_argument("--status", action="store_true",
-                        help="say which runs are finished here, finished elsewhere (the ledger), stopped "
-                             "or new, and exit; without a suite, a line per catalogue entry")
+                        help="say which runs are finished here, finished elsewhere (the ledger), being "
+                             "written by another process now, stopped or new, and exit; without a suite, "
+                             "a line per catalogue entry")
     parser.add_argument("--list", action="store_true",
                         help="list the shipped suites (the paper's catalogue and the others) and exit")
     parser.set_defaults(func=run)

@@ -73,6 +73,23 @@ def lock_run(folder: Path) -> None:
     at_hard_exit(release)  # a Ctrl-C stop leaves with os._exit, where atexit does not run
 
 
+def run_writer(folder: Path) -> int | None:
+    """The live process writing `folder` (holding its `lock_run` lock), or None: a shared flock on
+    the lock file is refused while the writer holds its exclusive one."""
+    path = folder.resolve().parent / f".{folder.name}.lock"
+    if folder.resolve() in _LOCKS or not path.is_file():
+        return None
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        owner = os.read(fd, 64).decode(errors="replace").strip()
+        return int(owner) if owner.isdigit() else -1
+    finally:
+        os.close(fd)  # closing releases the shared lock, if it was granted
+    return None
+
+
 def train_run_names(exp_id: str | None, alg: str, mode: str, net: str, task_stem: str, seeds: list[int]
                     ) -> list[str]:
     """The results folder of each seed of a train run: `exp_id` itself for one seed, else

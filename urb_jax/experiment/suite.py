@@ -25,9 +25,9 @@ import pandas as pd
 
 from urb_jax.core.atomic import write_bytes, write_text
 from urb_jax.core.configio import find_config
-from urb_jax.core.errors import ConfigError
+from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.experiment.run import resume_train, run_baseline, run_train
-from urb_jax.experiment.run_folder import run_status, train_run_names
+from urb_jax.experiment.run_folder import run_status, run_writer, train_run_names
 from urb_jax.reporting.leaderboard import collect_folders
 from urb_jax.reporting.paper import (
     EntryResults,
@@ -64,16 +64,19 @@ class SuiteRun:
 
 STATES = {"done": "finished before, skipped",
           "recorded": "finished elsewhere (in the page's ledger), skipped",
+          "running": "being written now by another process (running the suite would stop here; wait)",
           "stopped": "resuming", "new": "starting"}
 
 
 def status(results_dir: Path, run: SuiteRun, recorded: frozenset[str] | set[str] = frozenset()) -> str:
-    """'done' (every folder finished here), 'stopped' (a folder exists here, not finished),
-    'recorded' (no folder here, every folder's run in `recorded`: the paper page's ledger, finished
-    on another machine) or 'new'."""
+    """'done' (every folder finished here), 'running' (a live process is writing one of them),
+    'stopped' (a folder exists here, not finished, nobody writing it), 'recorded' (no folder here,
+    every folder's run in `recorded`: the paper page's ledger, finished on another machine) or 'new'."""
     states = [run_status(results_dir / name) for name in run.folder_names()]
     if all(s == "done" for s in states):
         return "done"
+    if any(run_writer(results_dir / name) is not None for name in run.folder_names()):
+        return "running"
     if any(s is not None for s in states):
         return "stopped"
     return "recorded" if set(run.folder_names()) <= set(recorded) else "new"
@@ -100,6 +103,11 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
             f"{time.perf_counter() - t0:.0f} s into the suite")
         if state == "recorded":
             continue
+        if state == "running":
+            writers = {run_writer(results_dir / name) for name in run.folder_names()} - {None}
+            raise UrbJaxError(f"{results_dir / run.exp_id}: run '{run.exp_id}' is being written by "
+                              f"process {', '.join(map(str, sorted(writers)))}. Fix: wait for it to finish "
+                              "(the suite skips it then), or leave it out with --only.")
         # A human phase depends on the network, demand, humans and env seed, not on the CAVs: a new
         # run replays the first earlier run's that matches (checked by the run itself) instead of
         # simulating it again, this suite's runs first, then the runs finished in the folder before
