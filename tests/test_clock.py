@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor
@@ -123,3 +124,22 @@ def test_the_hybrid_hint_goes_to_urbs_own_config_only():
         hint = _slow_hint("mappo", load_algo_config("mappo", conf))
         assert "--alg-conf hybrid" not in hint and "--train-days" in hint
     assert "--alg-conf hybrid" not in _slow_hint("iql_star", load_algo_config("iql_star", "config1"))
+
+
+@pytest.mark.slow
+def test_a_run_with_urbs_config1_gets_the_hybrid_hint(tmp_path, capsys, monkeypatch):
+    """The hint is chosen from the config as given: fitted to the budget (n_iters), URB's config1
+    no longer equals the file, and a slow QMIX config1 run on nemours was told only 'fewer
+    --train-days' (session 15)."""
+    from urb_jax.experiment.hybrid import clock
+    from urb_jax.experiment.run import run_train
+
+    monkeypatch.setattr(clock, "SLOW_S", 0.0)  # every training counts as slow
+    hyb = {"train_days": 20, "num_envs": 2, "surrogate_days_per_round": 8, "sumo_days_per_round": 2,
+           "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
+           "refit_days": 4, "refit_steps": 5}
+    (tmp_path / "hyb.json").write_text(json.dumps(hyb))
+    run_train(alg="mappo", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"), alg_conf="config1",
+              results_dir=str(tmp_path / "r"), progress=False, executor=FakeExecutor(), stop_after_round=1)
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("estimate:")]
+    assert len(lines) == 1 and "`--alg-conf hybrid` trains mappo" in lines[0]

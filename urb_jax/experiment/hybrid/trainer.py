@@ -138,9 +138,10 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     env = surrogate_env(scn, is_cav, static, humans, p0, env_kwargs)
     probe, _ = learner_for(alg, alg_config, env, cfg, 1, mode)
     plan = plan_rounds(cfg, mode, probe.days_per_iter)
+    hint = _slow_hint(alg, alg_config)  # of the config as given: fitting to the budget changes it
     learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
-    clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg, alg_config))
+    clock = IterationClock(plan.iters, plan.n_rounds, hint)
     fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
     return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,
