@@ -143,3 +143,50 @@ def test_a_run_with_urbs_config1_gets_the_hybrid_hint(tmp_path, capsys, monkeypa
               results_dir=str(tmp_path / "r"), progress=False, executor=FakeExecutor(), stop_after_round=1)
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("estimate:")]
     assert len(lines) == 1 and "`--alg-conf hybrid` trains mappo" in lines[0]
+
+
+def test_the_probe_scales_one_environment_to_the_iteration():
+    notes: list[str] = []
+    clock = IterationClock(n_iters=2, n_rounds=10, hint="HINT", note=notes.append, clock=FakeTime())
+    clock.start_round(0)
+    clock.before_training(48.0 * 80, 80)  # 48 s for one env, 5 seeds x 16 envs an iteration
+    # 3,840 s an iteration, 2 a round, 10 rounds: 21.3 h, slow, so the hint follows
+    assert notes[0].startswith("estimate before training (one environment's iteration timed here, "
+                               "times the 80 of an iteration): one surrogate iteration takes 64.0 min")
+    assert "about 2.1 h" in notes[0] and "about 21.3 h" in notes[0] and notes[0].endswith("HINT")
+    assert not clock.estimated  # the first real iteration still gives its own estimate
+
+
+@pytest.mark.slow
+def test_a_big_learner_is_timed_before_training(tmp_path, capsys, monkeypatch):
+    """Above PROBE_PARAMS a run says its cost before the first round; the probe has its own runner
+    and key, so the records are byte-identical to the same run without it."""
+    from urb_jax.experiment.hybrid import clock
+    from urb_jax.experiment.run import run_train
+
+    hyb = {"train_days": 20, "num_envs": 2, "surrogate_days_per_round": 8, "sumo_days_per_round": 2,
+           "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
+           "refit_days": 4, "refit_steps": 5}
+    alg = {"agent_frames_per_batch": 2, "n_iters": 10, "num_epochs": 1, "minibatch_size": 64,
+           "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400, "mixing_embed_dim": 8}
+    (tmp_path / "hyb.json").write_text(json.dumps(hyb))
+    (tmp_path / "qmix.json").write_text(json.dumps(alg))
+
+    def run(name: str) -> list[str]:
+        run_train(alg="qmix", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"), seeds=[0, 1],
+                  alg_conf=str(tmp_path / "qmix.json"), results_dir=str(tmp_path / name), progress=False,
+                  executor=FakeExecutor(), stop_after_round=1)
+        return [line for line in capsys.readouterr().err.splitlines() if line.startswith("estimate")]
+
+    plain = run("plain")
+    monkeypatch.setattr(clock, "PROBE_PARAMS", 0)
+    probed = run("probed")
+    assert [line.split(":")[0] for line in plain] == ["estimate"]
+    assert [line.split(":")[0] for line in probed] == [
+        "estimate before training (one environment's iteration timed here, times the 4 of an iteration)",
+        "estimate"]
+    for seed in ("s0", "s1"):  # round 1's SUMO days (records) were chosen by the trained policy
+        (a,), (b,) = ((tmp_path / name).glob(f"qmix_*_{seed}") for name in ("plain", "probed"))
+        files = sorted(p.relative_to(a) for p in a.glob("records.parts/*"))
+        assert len(files) == 2 and files == sorted(p.relative_to(b) for p in b.glob("records.parts/*"))
+        assert all((a / f).read_bytes() == (b / f).read_bytes() for f in files)

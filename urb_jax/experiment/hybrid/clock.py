@@ -19,8 +19,15 @@ from typing import Any
 import jax
 import numpy as np
 
+from urb_jax.algorithms.learner import Learner
+
 LINE_EVERY_S = 300.0
 SLOW_S = 3600.0  # a surrogate training estimated longer than this gets the --alg-conf hybrid hint
+# A learner with more parameters than this is timed on one environment before training, so the
+# estimate comes in a minute or two, not after a first iteration that can take 20 minutes (URB's
+# QMIX config1: the mixer's hypernetwork grows as CAVs squared, 7.4 M parameters on saint_arnoult's
+# 88 CAVs, about 80 M on nemours' 291).
+PROBE_PARAMS = 10_000_000
 
 
 def fmt_duration(seconds: float) -> str:
@@ -62,16 +69,37 @@ class IterationClock:
             self.note(f"round {self.round + 1}/{self.n_rounds}: surrogate iteration {i}/{self.n_iters}, "
                       f"{fmt_duration(per_iter)} each, round ETA {left}")
 
-    def estimate(self, per_iter: float) -> str:
+    def before_training(self, per_iter: float, envs: int) -> None:
+        """The estimate from a probe: one environment's iteration timed, times the `envs`
+        environments (seeds x envs) of a real iteration."""
+        self.note(self.estimate(per_iter, head=f"estimate before training (one environment's iteration "
+                                                f"timed here, times the {envs} of an iteration)"))
+
+    def estimate(self, per_iter: float, head: str = "estimate") -> str:
         """The surrogate training's cost on this machine, from one measured iteration."""
         rounds_left = self.n_rounds - self.round
         total = per_iter * self.n_iters * rounds_left
-        text = (f"estimate: one surrogate iteration takes {fmt_duration(per_iter)} here, so a round's "
+        text = (f"{head}: one surrogate iteration takes {fmt_duration(per_iter)} here, so a round's "
                 f"{self.n_iters} iterations take about {fmt_duration(per_iter * self.n_iters)} and the "
                 f"{rounds_left} round(s) left about {fmt_duration(total)} (plus their SUMO days)")
         if total > SLOW_S and self.hint:
             text += f". {self.hint}"
         return text
+
+
+def needs_probe(params: Any) -> bool:
+    """Whether a learner with these parameters (arrays or shapes) is big enough to time first."""
+    return sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(params)) > PROBE_PARAMS
+
+
+def probe_seconds(learner: Learner, key: jax.Array) -> float:
+    """Seconds one iteration of `learner` (built for one environment) takes here; the compilation
+    is not timed. Its own runner and key: the training's state and keys are untouched."""
+    runner = jax.jit(learner.init)(key)
+    step = jax.jit(learner.iteration).lower(runner, key).compile()
+    t0 = time.perf_counter()
+    jax.block_until_ready(step(runner, key))
+    return time.perf_counter() - t0
 
 
 CHUNKS = 8  # a round runs as at least this many chunks where its iteration count allows

@@ -9,6 +9,7 @@ fold_in(k_rounds, r) and the checkpointed state, so a resumed group ends like an
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -20,13 +21,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.algorithms.learner import Day
-from urb_jax.algorithms.registry import load_algo_config
+from urb_jax.algorithms.registry import algorithm, load_algo_config
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import RoundMeta, restore_round, save_round
 from urb_jax.experiment.human_phase import HumanPhase, calibrate, uncalibrated
-from urb_jax.experiment.hybrid.clock import IterationClock, run_chunks
+from urb_jax.experiment.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns
 from urb_jax.experiment.hybrid.plan import (
     MODES,
@@ -91,6 +92,7 @@ class Group:
     fns: TrainerFns
     keys: GroupKeys
     clock: IterationClock  # times the surrogate iterations, chunk by chunk
+    probe: Callable[[], float] | None  # a big learner's one-environment iteration, seconds (clock)
 
     @property
     def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
@@ -142,12 +144,16 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
     clock = IterationClock(plan.iters, plan.n_rounds, hint)
+    probe = None
+    if plan.iters and needs_probe(jax.eval_shape(learner.init, jax.random.PRNGKey(0)).params):
+        one = algorithm(alg).make_learner(dataclasses.replace(alg_config, num_envs=1), env)
+        probe = functools.partial(probe_seconds, one, jax.random.PRNGKey(0))
     fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
     return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,
                  task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
                  np.flatnonzero(is_cav), static, p0,
-                 plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock)
+                 plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock, probe)
 
 
 def _slow_hint(alg: str, alg_config: AlgoConfig) -> str:
@@ -438,6 +444,9 @@ def train_group(
     if on_round is not None:  # a resumed group's restored rounds first
         for r in range(start):
             on_round([log[r] for log in trainer.rounds_logs])
+    if g.probe is not None and start < plan.n_rounds:  # a big learner: its cost said up front
+        g.clock.start_round(start)
+        g.clock.before_training(g.probe() * g.S * cfg.num_envs, g.S * cfg.num_envs)
     for r in range(start, plan.n_rounds):
         trainer.run_round(r)
         if on_round is not None:
