@@ -187,6 +187,11 @@ def test_suite_paper_writes_the_page_from_a_results_folder(tmp_path, scenario1_p
     assert "| `scenario1` | found | 2 of 21 runs finished |" in text  # IPPO's 5 seeds are one run, unfinished
     assert "| `adjusted_iql_ippo` | not found | 1 of 12 runs finished |" in text  # it shares the AON run
     assert "| `scenario2` | not found | not run yet |" in text
+    # a partly run entry names the 19 runs it has left, not the two finished (IPPO, AON)
+    left = next(line for line in text.splitlines() if line.startswith("Not finished yet:"))
+    assert "`s1_saint_arnoult_iql`" in left and "`s1_ingolstadt_custom_qmix`" in left
+    assert "`s1_saint_arnoult_ippo`" not in left and "`saint_arnoult_aon`" not in left
+    assert left.count("`, `") == 18
     # the figure is copied next to the page and linked there: the page's links hold in the repository
     assert "![saint_arnoult_ippo_config1](paper_figures/scenario1/saint_arnoult_ippo_config1.png)" in text
     copied = out.parent / "paper_figures" / "scenario1" / "saint_arnoult_ippo_config1.png"
@@ -262,13 +267,13 @@ def test_the_page_keeps_the_runs_of_earlier_generations(tmp_path, monkeypatch, c
     for run, state in (("s1_saint_arnoult_ippo", "recorded"), ("saint_arnoult_aon", "done"),
                        ("s1_provins_ippo", "new")):
         assert re.search(rf"{run} +{state}", status)
-    assert "3 runs: 1 done, 1 recorded, 0 stopped, 1 new" in status
+    assert "3 runs: 1 done, 1 recorded, 0 running, 0 stopped, 1 new" in status
     assert main([*args, "--status", "--ledger", "none"]) == 0
     assert re.search(r"s1_saint_arnoult_ippo +new", capsys.readouterr().out)
     assert main(["suite", "--status", "--results-dir", str(second), "--ledger", ledger]) == 0  # every entry
     overview = capsys.readouterr().out
-    assert re.search(r"^scenario1 +21 runs: 2 done, 1 recorded, 0 stopped, 18 new$", overview, re.MULTILINE)
-    assert re.search(r"^sensitivity_global_obs +3 runs: 0 done, 0 recorded, 0 stopped, 3 new$", overview,
+    assert re.search(r"^scenario1 +21 runs: 2 done, 1 recorded, 0 running, 0 stopped, 18 new$", overview, re.MULTILINE)
+    assert re.search(r"^sensitivity_global_obs +3 runs: 0 done, 0 recorded, 0 running, 0 stopped, 3 new$", overview,
                      re.MULTILINE)
     args[3] = "s1_saint_arnoult_ippo,saint_arnoult_aon"
     assert main(args) == 0  # nothing to simulate: both skipped

@@ -230,7 +230,9 @@ def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.
             write_bytes(figures_dir / entry / png.name, png.read_bytes())
     figures = [os.path.relpath(p, figures_dir.parent) for p in sorted((figures_dir / entry).glob("*.png"))]
     seeds = [len(r.kwargs.get("seeds") or [0]) for r in spec.runs if r.kind == "train"]
-    return EntryResults(entry, spec.title, runs, len(spec.runs), len(done), max(seeds, default=1), figures)
+    missing = [r.exp_id for r in spec.runs if r not in done]
+    return EntryResults(entry, spec.title, runs, len(spec.runs), len(done), max(seeds, default=1), figures,
+                        missing)
 
 
 # Keyword arguments a suite file may give each kind (the commands' own flags, as Python names).

@@ -207,6 +207,7 @@ class EntryResults:
     runs_done: int
     seeds_planned: int
     figures: list[str] = field(default_factory=list)
+    missing: list[str] = field(default_factory=list)  # run ids not finished yet
 
 
 def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
@@ -217,6 +218,9 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
     out.append(f"Ours: {state}; {res.seeds_planned} seed(s) per train run planned. "
                f"Paper: {paper.get('paper_seeds', 'seeds not stated in what was found')}.")
     out.append("")
+    if res.missing and res.runs_done:
+        out += [f"Not finished yet: {', '.join(f'`{m}`' for m in res.missing)} "
+                f"(`urb-jax suite {res.entry} --status`; `urb-jax suite {res.entry}` runs them).", ""]
     runs = res.runs
     if paper.get("status") != "found":
         out += [f"**The paper's numbers: not found.** {paper.get('notes', '')}", ""]
