@@ -272,9 +272,10 @@ def test_the_page_keeps_the_runs_of_earlier_generations(tmp_path, monkeypatch, c
     assert re.search(r"s1_saint_arnoult_ippo +new", capsys.readouterr().out)
     assert main(["suite", "--status", "--results-dir", str(second), "--ledger", ledger]) == 0  # every entry
     overview = capsys.readouterr().out
-    assert re.search(r"^scenario1 +21 runs: 2 done, 1 recorded, 0 running, 0 stopped, 18 new$", overview, re.MULTILINE)
-    assert re.search(r"^sensitivity_global_obs +3 runs: 0 done, 0 recorded, 0 running, 0 stopped, 3 new$", overview,
+    assert re.search(r"^scenario1 +21 runs: 2 done, 1 recorded, 0 running, 0 stopped, 18 new$", overview,
                      re.MULTILINE)
+    assert re.search(r"^sensitivity_global_obs +3 runs: 0 done, 0 recorded, 0 running, 0 stopped, 3 new$",
+                     overview, re.MULTILINE)
     args[3] = "s1_saint_arnoult_ippo,saint_arnoult_aon"
     assert main(args) == 0  # nothing to simulate: both skipped
     out_lines = capsys.readouterr().out
