@@ -29,6 +29,7 @@ from urb_jax.experiment.checkpoints import RoundMeta, restore_round, save_round
 from urb_jax.experiment.human_phase import HumanPhase, calibrate, uncalibrated
 from urb_jax.experiment.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns
+from urb_jax.experiment.hybrid.memory import check_fits
 from urb_jax.experiment.hybrid.plan import (
     MODES,
     AlgoConfig,
@@ -144,10 +145,12 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
     clock = IterationClock(plan.iters, plan.n_rounds, hint)
+    shapes = jax.eval_shape(learner.init, jax.random.PRNGKey(0))  # one seed's runner, no memory
     probe = None
-    if plan.iters and needs_probe(jax.eval_shape(learner.init, jax.random.PRNGKey(0)).params):
+    if plan.iters and needs_probe(shapes.params):
         one = algorithm(alg).make_learner(dataclasses.replace(alg_config, num_envs=1), env)
         probe = functools.partial(probe_seconds, one, jax.random.PRNGKey(0))
+    check_fits(shapes, len(seeds), int(probe is not None), f"{alg} on {scn.name}")
     fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
     return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,

@@ -1,0 +1,51 @@
+"""urb_jax.experiment.hybrid.memory: a learner that would not fit is refused before training, with
+the fix, instead of being found out by the kernel's OOM killer."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_hybrid_loop import FakeExecutor
+
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment.hybrid import memory
+
+MB = 1024**2
+
+
+def test_the_state_is_counted_from_shapes_and_compared_with_room_for_the_peak():
+    state = {"w": jax.ShapeDtypeStruct((1024, 1024), np.float32), "n": jax.ShapeDtypeStruct((256,), np.int32)}
+    assert memory.tree_bytes(state) == 4 * MB + 1024
+    memory.check_fits(state, seeds=3, extra=0, what="x", available=30 * MB)  # 3 x 8 MB at the peak: fits
+    with pytest.raises(UrbJaxError) as err:
+        memory.check_fits(state, seeds=5, extra=1, what="qmix on nowhere", available=30 * MB)
+    text = str(err.value)  # 6 x 8 MB > 30 MB; 3 states fit, one of them the probe's: 2 seeds at a time
+    assert text.startswith("qmix on nowhere: the learner's state is 0.0 GB a seed")
+    assert "Fix: --set hybrid.max_vmapped_seeds=2 (trains 2 seed(s) at a time)" in text
+    with pytest.raises(UrbJaxError) as err:  # not even one seed: no max_vmapped_seeds to offer
+        memory.check_fits(state, seeds=1, extra=0, what="x", available=5 * MB)
+    assert "max_vmapped_seeds" not in str(err.value) and "--alg-conf hybrid" in str(err.value)
+    assert memory.available_bytes() > 0
+
+
+def test_a_run_that_would_not_fit_stops_before_training(tmp_path, monkeypatch):
+    from urb_jax.experiment.run import run_train
+
+    monkeypatch.setattr(memory, "available_bytes", lambda: 1 * MB)
+    hyb = {"train_days": 20, "num_envs": 2, "surrogate_days_per_round": 8, "sumo_days_per_round": 2,
+           "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
+           "refit_days": 4, "refit_steps": 5}
+    (tmp_path / "hyb.json").write_text(json.dumps(hyb))
+    with pytest.raises(UrbJaxError, match=r"this machine has 0\.0 GB available"):
+        run_train(alg="iql", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"), seeds=[0, 1],
+                  results_dir=str(tmp_path / "r"), progress=False, executor=FakeExecutor())
+    folders = sorted((tmp_path / "r").glob("iql_*"))
+    assert folders and all(not (f / "checkpoints").exists() for f in folders)  # no training round ran
+    assert (folders[0] / "human_phase.npz").is_file()  # what the error says --human-phase-from reuses
