@@ -76,8 +76,9 @@ def lock_run(folder: Path) -> None:
 def run_writer(folder: Path) -> int | None:
     """The live process writing `folder` (holding its `lock_run` lock), or None: a shared flock on
     the lock file is refused while the writer holds its exclusive one."""
-    path = folder.resolve().parent / f".{folder.name}.lock"
-    if folder.resolve() in _LOCKS or not path.is_file():
+    folder = folder.resolve()
+    path = folder.parent / f".{folder.name}.lock"
+    if folder in _LOCKS or not path.is_file():
         return None
     fd = os.open(path, os.O_RDONLY)
     try:

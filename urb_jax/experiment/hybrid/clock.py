@@ -20,6 +20,7 @@ import jax
 import numpy as np
 
 from urb_jax.algorithms.learner import Learner
+from urb_jax.experiment.hybrid.memory import tree_size
 
 LINE_EVERY_S = 300.0
 SLOW_S = 3600.0  # a surrogate training estimated longer than this gets the --alg-conf hybrid hint
@@ -89,7 +90,7 @@ class IterationClock:
 
 def needs_probe(params: Any) -> bool:
     """Whether a learner with these parameters (arrays or shapes) is big enough to time first."""
-    return sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(params)) > PROBE_PARAMS
+    return tree_size(params) > PROBE_PARAMS
 
 
 def probe_seconds(learner: Learner, key: jax.Array) -> float:

@@ -27,6 +27,11 @@ PEAK_OVER_STATE = 2.0
 GB = 1024**3
 
 
+def tree_size(tree: Any) -> int:
+    """Elements of a pytree of arrays or shapes (`jax.ShapeDtypeStruct`)."""
+    return sum(int(np.prod(x.shape)) for x in jax.tree_util.tree_leaves(tree))
+
+
 def tree_bytes(tree: Any) -> int:
     """Bytes of a pytree of arrays or shapes (`jax.ShapeDtypeStruct`)."""
     return sum(int(np.prod(x.shape)) * np.dtype(x.dtype).itemsize for x in jax.tree_util.tree_leaves(tree))

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.algorithms.learner import Day
-from urb_jax.algorithms.registry import algorithm, load_algo_config
+from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
@@ -141,14 +141,15 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     env = surrogate_env(scn, is_cav, static, humans, p0, env_kwargs)
     probe, _ = learner_for(alg, alg_config, env, cfg, 1, mode)
     plan = plan_rounds(cfg, mode, probe.days_per_iter)
-    hint = _slow_hint(alg, alg_config)  # of the config as given: fitting to the budget changes it
-    learner, alg_config = learner_for(alg, alg_config, env, cfg, plan.n_rounds, mode, plan.iters)
+    given = alg_config  # the hint and the probe's learner start from it: fitting changes it
+    learner, alg_config = learner_for(alg, given, env, cfg, plan.n_rounds, mode, plan.iters)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
-    clock = IterationClock(plan.iters, plan.n_rounds, hint)
+    clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg, given))
     shapes = jax.eval_shape(learner.init, jax.random.PRNGKey(0))  # one seed's runner, no memory
     probe = None
     if plan.iters and needs_probe(shapes.params):
-        one = algorithm(alg).make_learner(dataclasses.replace(alg_config, num_envs=1), env)
+        one, _ = learner_for(alg, given, env, dataclasses.replace(cfg, num_envs=1), plan.n_rounds, mode,
+                             plan.iters)
         probe = functools.partial(probe_seconds, one, jax.random.PRNGKey(0))
     check_fits(shapes, len(seeds), int(probe is not None), f"{alg} on {scn.name}")
     fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
