@@ -4,6 +4,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from urb_jax.core.errors import ConfigError
+
+FRAME_KINDS = ("days", "urb")  # what the value learners replay (algorithms/frames.py)
+
+
+def check_frames(frames: str, num_minibatches: int) -> None:
+    if frames not in FRAME_KINDS:
+        raise ConfigError(f"key 'frames' is {frames!r}. Fix: use 'days' (real decisions) or 'urb' "
+                          "(URB's TorchRL frames).")
+    if frames == "urb" and num_minibatches > 0:
+        raise ConfigError("key 'frames' is 'urb' with 'num_minibatches' > 0: URB's frames come with URB's "
+                          "update count. Fix: set num_minibatches to 0, or frames to 'days'.")
+
 
 @dataclass(frozen=True)
 class TorchRLCommon:
@@ -35,6 +48,12 @@ class IQLConfig(TorchRLCommon):
     eps_end: float = 0.1
     exploration_fraction: float = 0.5
     target_eps: float = 0.99  # URB key `eps`: target <- eps*target + (1-eps)*online, once per epoch
+    # "days": replay real decisions, one row per CAV per day (ours). "urb": URB's TorchRL frames,
+    # one per CAV turn with every CAV's row, reward on the day's last frame only (algorithms/frames.py)
+    frames: str = "days"
+
+    def __post_init__(self) -> None:
+        check_frames(self.frames, self.num_minibatches)
 
 
 @dataclass(frozen=True)
@@ -70,9 +89,10 @@ class MixerConfig(TorchRLCommon):
     # with reward_credit "marginal" each CAV's Q then learns its own marginal effect, which the team
     # mean alone cannot teach it (docs/algorithms.md, "Per-CAV credit"). 0: URB's loss.
     agent_credit: float = 0.0
+    frames: str = "days"  # as IQLConfig.frames
 
     def __post_init__(self) -> None:
-        from urb_jax.core.errors import ConfigError
+        check_frames(self.frames, self.num_minibatches)
 
         if self.q_scale not in ("team", "own"):
             raise ConfigError(f"key 'q_scale' is {self.q_scale!r}. Fix: use 'team' (URB) or 'own'.")

@@ -18,8 +18,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init, buffer_sample
+from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
 from urb_jax.algorithms.configs import IQLConfig
+from urb_jax.algorithms.frames import make_replay
 from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import hidden_layers, make_agent_net
 from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
@@ -67,6 +68,7 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
     n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.agent_frames_per_batch
     _, mb_iter = update_plan(config.num_minibatches, config.minibatch_size, n_days * n_envs, n_cav)
     capacity = max(config.memory_size // max(n_cav, 1), mb_iter)  # memory_size frames, stored as days
+    replay = make_replay(config.frames, env, config.num_minibatches, config.minibatch_size, capacity)
     total_days = n_days * config.n_iters
     eps_at = linear_schedule(config.eps_init, config.eps_end, config.exploration_fraction * total_days)
     tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
@@ -81,7 +83,8 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
         c, d = n_cav, env.obs_size
         example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
                       jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
-        return RunnerState(params, params, tx.init(params), buffer_init(example, capacity), env_states,
+        return RunnerState(params, params, tx.init(params), buffer_init(replay.example(example), capacity),
+                           env_states,
                            env.default_params, jnp.zeros((), jnp.int32))
 
     def policy(runner: RunnerState, explore: bool = True):
@@ -89,16 +92,16 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
 
     def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
         t, b = days_shape(days)
-        steps_per_epoch, mb_days = update_plan(config.num_minibatches, config.minibatch_size, t * b, n_cav,
-                                               capacity)
-        buffer = buffer_add(runner.buffer, flatten_days(days))
+        steps_per_epoch, mb = replay.plan(t * b)
+        q_fn = lambda obs: net.apply(runner.params, obs)  # noqa: E731 (the policy that emitted the days)
+        buffer = buffer_add(runner.buffer, replay.store(key, q_fn, eps_at(runner.day), flatten_days(days)))
 
         def epoch(carry, k):
             params, target, opt_state = carry
 
             def sgd_step(carry, k):
                 params, opt_state = carry
-                batch = buffer_sample(buffer, k, mb_days)
+                batch = replay.sample(buffer, k, mb)
                 return adam_step(tx, loss_fn, params, opt_state, target, batch)
 
             (params, opt_state), losses = jax.lax.scan(
@@ -107,7 +110,7 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
 
         (params, target, opt_state), losses = jax.lax.scan(
             epoch, (runner.params, runner.target, runner.opt_state), jax.random.split(key, config.num_epochs))
-        ready = buffer.size >= mb_days
+        ready = replay.ready(buffer, mb)
         params, target, opt_state = select_tree(
             ready, (params, target, opt_state), (runner.params, runner.target, runner.opt_state))
         metrics = day_metrics(days) | {"loss": losses.mean()}

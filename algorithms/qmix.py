@@ -22,8 +22,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init, buffer_sample
+from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
 from urb_jax.algorithms.configs import MixerConfig
+from urb_jax.algorithms.frames import make_replay
 from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import hidden_layers, make_agent_net, obs_scale
 from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
@@ -124,6 +125,7 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
     n_cav, n_envs, n_days = env.n_cavs, config.num_envs, config.agent_frames_per_batch
     _, mb_iter = update_plan(config.num_minibatches, config.minibatch_size, n_days * n_envs, n_cav)
     capacity = max(config.memory_size // max(n_cav, 1), mb_iter)
+    replay = make_replay(config.frames, env, config.num_minibatches, config.minibatch_size, capacity)
     eps_at = linear_schedule(config.eps_init, config.eps_end,
                              config.exploration_fraction * n_days * config.n_iters)
     tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
@@ -144,7 +146,7 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
                   "mixer": mix.init(k_mix, jnp.zeros((c,)), jnp.zeros((c * d,)))}
         example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
                       jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
-        return RunnerState(params, params, tx.init(params), buffer_init(example, capacity),
+        return RunnerState(params, params, tx.init(params), buffer_init(replay.example(example), capacity),
                            reset_envs(env, k_env, n_envs), env.default_params, jnp.zeros((), jnp.int32))
 
     def policy(runner: RunnerState, explore: bool = True):
@@ -152,20 +154,20 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
 
     def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
         t, b = days_shape(days)
-        steps_per_epoch, mb_days = update_plan(config.num_minibatches, config.minibatch_size, t * b, n_cav,
-                                               capacity)
+        steps_per_epoch, mb = replay.plan(t * b)
         n_steps = config.num_epochs * steps_per_epoch
-        buffer = buffer_add(runner.buffer, flatten_days(days))
+        q_fn = lambda obs: net.apply(runner.params["agent"], obs)  # noqa: E731 (the policy that emitted the days)
+        buffer = buffer_add(runner.buffer, replay.store(key, q_fn, eps_at(runner.day), flatten_days(days)))
 
         def sgd_step(carry, k):
             params, target, opt_state = carry
-            batch = buffer_sample(buffer, k, mb_days)
+            batch = replay.sample(buffer, k, mb)
             (params, opt_state), loss = adam_step(tx, loss_fn, params, opt_state, target, batch)
             return (params, polyak(target, params, 1.0 - config.tau), opt_state), loss
 
         old = (runner.params, runner.target, runner.opt_state)
         new, losses = jax.lax.scan(sgd_step, old, jax.random.split(key, n_steps))
-        params, target, opt_state = select_tree(buffer.size >= mb_days, new, old)
+        params, target, opt_state = select_tree(replay.ready(buffer, mb), new, old)
         metrics = day_metrics(days) | {"loss": losses.mean()}
         return runner._replace(params=params, target=target, opt_state=opt_state, buffer=buffer,
                                day=runner.day + t), metrics
