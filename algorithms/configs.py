@@ -67,6 +67,10 @@ class PPOConfig(TorchRLCommon):
     critic_coef: float = 1.0
     critic_depth: int = 4
     critic_cells: int = 256
+    frames: str = "days"  # as IQLConfig.frames: "urb" trains on URB's TorchRL frames (GAE across them)
+
+    def __post_init__(self) -> None:
+        check_frames(self.frames, self.num_minibatches)
 
 
 @dataclass(frozen=True)

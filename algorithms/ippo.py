@@ -8,6 +8,9 @@ day does not bootstrap: URB's one-day episodes make advantage = reward - V(obs))
 entropy bonus `entropy_eps`, smooth-L1 critic loss (TorchRL default, coefficient `critic_coef`)
 and optional advantage normalisation; one Adam (grad-norm clip) on both. `num_minibatches` > 0
 splits each epoch into that many minibatches (PureJaxRL) instead of URB's fixed-size ones.
+`frames="urb"` trains on URB's TorchRL frames instead (algorithms/frames.py): C frames per day,
+each with every CAV's row and a freshly sampled action outside its turn, GAE run across the
+frames (the day's reward arrives on its last frame), minibatches of `minibatch_size` frames.
 
 Advantage normalisation is over the whole iteration's batch, not per minibatch as TorchRL does:
 with a cooperative reward and a broadcast centralised value every CAV of a day has the same
@@ -26,6 +29,7 @@ import jax.numpy as jnp
 import optax
 
 from urb_jax.algorithms.configs import PPOConfig
+from urb_jax.algorithms.frames import frame_obs, turn_positions, unacted
 from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import MLP, hidden_layers, make_agent_net, obs_scale, take_agents
 from urb_jax.algorithms.policy import entropy, masked
@@ -109,6 +113,37 @@ def make_policy(config: PPOConfig, env: RoutingEnv, centralised: bool = False):
     return policy_for
 
 
+def frame_batch(logits_fn, value_fn, days: Day, turn: jnp.ndarray, k: int, key: jax.Array, gamma: float,
+                lmbda: float) -> Batch:
+    """[T * C, B] URB frames in play order (algorithms/frames.py) from days [T, B] played by the
+    policy with masked logits `logits_fn(obs[..., C, D])`: frame j of a day has every CAV's frame
+    observation, the turn CAV's executed action and fresh samples for the others; GAE runs across
+    the frames with the day's reward and done on its last frame. `value_fn(obs[..., C, D]) ->
+    [..., C]` is the critic (own observation, or the frame's global state for MAPPO)."""
+    t, b = days_shape(days)
+    n_cav = turn.shape[0]
+    frames = jnp.arange(n_cav)
+    acted = turn <= frames[:, None]  # [Cf, C]
+    obs = frame_obs(days.obs[:, :, None], turn, frames[None, None], k)  # [T, B, Cf, C, D]
+    logits_acted = logits_fn(days.obs)[:, :, None]  # [T, B, 1, C, K]: two evaluations per CAV-day
+    logits_before = logits_fn(unacted(days.obs, k))[:, :, None]
+    logits = jnp.where(acted[..., None], logits_acted, logits_before)  # [T, B, Cf, C, K]
+    drawn = jax.random.categorical(key, logits, axis=-1)
+    action = jnp.where(turn == frames[:, None], days.action[:, :, None], drawn).astype(jnp.int32)
+    log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[..., None], -1)[..., 0]
+    values = value_fn(obs)  # [T, B, Cf, C]
+    last = frames == n_cav - 1
+    reward = jnp.where(last[:, None], days.reward[:, :, None], 0.0)
+    done = jnp.broadcast_to(last[:, None], reward.shape)
+
+    def in_play_order(x: jnp.ndarray) -> jnp.ndarray:  # [T, B, Cf, ...] -> [T * Cf, B, ...]
+        return jnp.moveaxis(x, 2, 1).reshape(t * n_cav, b, *x.shape[3:])
+
+    adv, targets = gae(in_play_order(reward), in_play_order(values), in_play_order(done),
+                       jnp.zeros((b, n_cav)), gamma, lmbda)
+    return Batch(in_play_order(obs), in_play_order(action), in_play_order(log_prob), adv, targets)
+
+
 def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) -> Learner:
     actor, critic_init, critic_apply = make_networks(config, env, centralised)
     policy_for = make_policy(config, env, centralised)
@@ -129,30 +164,48 @@ def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) 
     def policy(runner: RunnerState, explore: bool = True):
         return policy_for(runner.params, sample=explore)
 
-    def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
-        """On-policy: `days` must have been played by `policy(runner, True)`."""
-        t, b = days_shape(days)
-        total = t * b
-        if config.num_minibatches > 0:  # PureJaxRL: a fixed count of minibatches that grow with B
-            n_minibatches = min(config.num_minibatches, total)
-            mb_days = total // n_minibatches
-        else:  # URB: minibatches of minibatch_size samples, B times as many with B envs
-            mb_days = min(minibatch_days(config.minibatch_size, env.n_cavs), total)
-            n_minibatches = max(1, total // mb_days)
-        params = runner.params
+    def day_batch(params: Any, days: Day) -> Batch:
+        """[T, B] rows: each CAV's decision of each day, GAE over the days."""
         logits = masked(actor.apply(params["actor"], days.obs), mask)
         log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), days.action[..., None], -1)[..., 0]
         values = critic_apply(params["critic"], days.obs)  # [T, B, C]
         last_value = critic_apply(params["critic"], days.next_obs[-1])
         adv, targets = gae(days.reward, values, days.done, last_value, config.gamma, config.lmbda)
+        return Batch(days.obs, days.action, log_prob, adv, targets)
+
+    turn = jnp.asarray(turn_positions(env))
+    n_cav = env.n_cavs
+
+    def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
+        """On-policy: `days` must have been played by `policy(runner, True)`."""
+        t, b = days_shape(days)
+        params = runner.params
+        if config.frames == "urb":  # URB: minibatches of minibatch_size frames
+            key, k_frames = jax.random.split(key)
+            batch = frame_batch(lambda obs: masked(actor.apply(params["actor"], obs), mask),
+                                lambda obs: critic_apply(params["critic"], obs), days, turn, env.n_actions,
+                                k_frames, config.gamma, config.lmbda)
+            total = t * b * n_cav
+            mb = min(config.minibatch_size, total)  # frames
+            n_minibatches = max(1, total // mb)
+        else:
+            batch = day_batch(params, days)
+            total = t * b
+            if config.num_minibatches > 0:  # PureJaxRL: a fixed count of minibatches that grow with B
+                n_minibatches = min(config.num_minibatches, total)
+                mb = total // n_minibatches
+            else:  # URB: minibatches of minibatch_size samples, B times as many with B envs
+                mb = min(minibatch_days(config.minibatch_size, env.n_cavs), total)
+                n_minibatches = max(1, total // mb)
+        adv = batch.advantage
         if config.normalize_advantage:  # over the iteration's batch: see module docstring
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-        data = flatten_days(Batch(days.obs, days.action, log_prob, adv, targets))
+        data = flatten_days(batch._replace(advantage=adv))
 
         def epoch(carry, k):
-            perm = jax.random.permutation(k, total)[: n_minibatches * mb_days]
+            perm = jax.random.permutation(k, total)[: n_minibatches * mb]
             shuffled = jax.tree_util.tree_map(
-                lambda x: x[perm].reshape(n_minibatches, mb_days, *x.shape[1:]), data)
+                lambda x: x[perm].reshape(n_minibatches, mb, *x.shape[1:]), data)
 
             def sgd_step(carry, batch: Batch):
                 params, opt_state = carry

@@ -13,9 +13,9 @@ import numpy as np
 import optax
 import pytest
 
-from urb_jax.algorithms import iql, qmix
+from urb_jax.algorithms import ippo, iql, qmix
 from urb_jax.algorithms.buffer import buffer_add, buffer_init
-from urb_jax.algorithms.configs import IQLConfig, MixerConfig
+from urb_jax.algorithms.configs import IQLConfig, MixerConfig, PPOConfig
 from urb_jax.algorithms.frames import (
     FrameDay,
     emit_frame_actions,
@@ -130,3 +130,32 @@ def test_frames_config_checked():
         IQLConfig(frames="turns")
     with pytest.raises(ConfigError, match="num_minibatches"):
         MixerConfig(frames="urb", num_minibatches=4)
+
+
+def test_ppo_frames_gae_across_a_days_frames():
+    """Critic 0, lambda 1: every row's advantage is gamma^(frames to the day's end) x its day reward,
+    so the executed decision of an early CAV sees its reward discounted C - 1 - turn times."""
+    days = Day(*(jnp.stack([x, x]) for x in one_day()))  # [T=2, B=1, C=3, ...]
+    logits = lambda obs: jnp.zeros((*obs.shape[:-1], K))  # noqa: E731
+    values = lambda obs: jnp.zeros(obs.shape[:-1])  # noqa: E731
+    batch = ippo.frame_batch(logits, values, days, TURN, K, jax.random.PRNGKey(0), 0.5, 1.0)
+    assert batch.obs.shape == (2 * 3, 1, 3, 3) and batch.action.shape == (6, 1, 3)
+    adv = np.asarray(batch.advantage[:, 0])  # [T * Cf, C] in play order
+    for day in range(2):
+        for j in range(3):
+            np.testing.assert_allclose(adv[3 * day + j], 0.5 ** (2 - j) * np.asarray(REWARD[0]), rtol=1e-6)
+    acted = np.asarray(batch.action[:, 0])
+    for cav, turn in enumerate(np.asarray(TURN)):  # the executed action in the CAV's turn frame
+        assert acted[turn, cav] == ACTION[0, cav] and acted[3 + turn, cav] == ACTION[0, cav]
+    np.testing.assert_allclose(np.asarray(batch.log_prob), np.log(0.5), rtol=1e-6)
+
+
+def test_ppo_frame_learner_update_count(env):
+    config = PPOConfig(agent_frames_per_batch=2, mlp_depth=1, mlp_cells=8, critic_depth=1, critic_cells=8,
+                       minibatch_size=32, num_epochs=2, frames="urb")
+    for centralised in (False, True):
+        learner = ippo.make_learner(config, env, centralised)
+        runner = learner.init(jax.random.PRNGKey(0))
+        runner, metrics = jax.jit(learner.iteration)(runner, jax.random.PRNGKey(1))
+        assert int(optax.tree_utils.tree_get(runner.opt_state, "count")) == 2 * (2 * env.n_cavs // 32)
+        assert np.isfinite(float(metrics["loss"]))
