@@ -14,6 +14,7 @@ actions, and the other frames bootstrap zero-reward targets inside the day.
 Both kinds share one interface (`Replay`): what the buffer stores per day, how many Adam steps an
 update makes and on how many entries, and how a minibatch is drawn. Frames are stored as the day
 plus its emitted actions [C, C] and expanded when sampled, so the buffer stays day-sized.
+IPPO and MAPPO build their on-policy frames from the same pieces (`ippo.frame_batch`).
 """
 
 from __future__ import annotations
