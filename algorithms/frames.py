@@ -28,7 +28,7 @@ import numpy as np
 
 from urb_jax.algorithms.buffer import Buffer, buffer_sample
 from urb_jax.algorithms.learner import Day
-from urb_jax.algorithms.policy import masked
+from urb_jax.algorithms.policy import eps_greedy
 from urb_jax.algorithms.updates import n_updates, update_plan
 from urb_jax.game.env import RoutingEnv
 
@@ -70,14 +70,11 @@ def emit_frame_actions(key: jax.Array, q_fn: QFn, mask: jnp.ndarray, eps: jnp.nd
     """[M, C, C] the actions the epsilon-greedy policy emits in each frame of M days (day arrays
     [M, C, ...]): the executed action at a CAV's turn, a fresh draw in every other frame. A CAV's
     frame observation is one of two (before / from its turn), so two Q evaluations per CAV suffice."""
-    m, c = day.action.shape
-    greedy_acted = jnp.argmax(masked(q_fn(day.obs), mask), -1)  # [M, C]
-    greedy_before = jnp.argmax(masked(q_fn(unacted(day.obs, k)), mask), -1)
-    frames = jnp.arange(c)[:, None]  # [C(frames), 1]
-    greedy = jnp.where(turn <= frames, greedy_acted[:, None, :], greedy_before[:, None, :])  # [M, C, C]
-    k_rand, k_explore = jax.random.split(key)
-    rand = jax.random.categorical(k_rand, jnp.where(mask, 0.0, -1e9), shape=(m, c, c))
-    drawn = jnp.where(jax.random.uniform(k_explore, (m, c, c)) < eps, rand, greedy)
+    frames = jnp.arange(turn.shape[0])[:, None]  # [C(frames), 1]
+    q_acted = q_fn(day.obs)[:, None]  # [M, 1, C, K]
+    q_before = q_fn(unacted(day.obs, k))[:, None]
+    q = jnp.where((turn <= frames)[..., None], q_acted, q_before)  # [M, C(frames), C, K]
+    drawn = eps_greedy(key, q, mask, eps)
     return jnp.where(turn == frames, day.action[:, None, :], drawn).astype(jnp.int32)
 
 

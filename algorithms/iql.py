@@ -12,6 +12,7 @@ URB's episodes are one day (done every day), so y = r: a contextual bandit per d
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import jax
@@ -84,8 +85,7 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
         example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
                       jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
         return RunnerState(params, params, tx.init(params), buffer_init(replay.example(example), capacity),
-                           env_states,
-                           env.default_params, jnp.zeros((), jnp.int32))
+                           env_states, env.default_params, jnp.zeros((), jnp.int32))
 
     def policy(runner: RunnerState, explore: bool = True):
         return policy_for(runner.params, eps_at(runner.day) if explore else 0.0)
@@ -93,7 +93,7 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
     def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
         t, b = days_shape(days)
         steps_per_epoch, mb = replay.plan(t * b)
-        q_fn = lambda obs: net.apply(runner.params, obs)  # noqa: E731 (the policy that emitted the days)
+        q_fn = functools.partial(net.apply, runner.params)  # the policy that emitted the days
         buffer = buffer_add(runner.buffer, replay.store(key, q_fn, eps_at(runner.day), flatten_days(days)))
 
         def epoch(carry, k):

@@ -21,10 +21,11 @@ def masked(logits: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
 
 
 def eps_greedy(key: jax.Array, q: jnp.ndarray, mask: jnp.ndarray, eps: jnp.ndarray) -> jnp.ndarray:
-    """[..., K] values -> actions; with probability eps a uniform valid route."""
+    """[..., K] values -> actions; with probability eps a uniform valid route, drawn for every
+    entry of the values' leading axes (the mask broadcasts to them)."""
     k_rand, k_explore = jax.random.split(key)
     greedy = jnp.argmax(masked(q, mask), axis=-1)
-    rand = jax.random.categorical(k_rand, jnp.where(mask, 0.0, NEG), axis=-1)
+    rand = jax.random.categorical(k_rand, jnp.broadcast_to(jnp.where(mask, 0.0, NEG), q.shape), axis=-1)
     explore = jax.random.uniform(k_explore, greedy.shape) < eps
     return jnp.where(explore, rand, greedy).astype(jnp.int32)
 

@@ -15,6 +15,7 @@ target <- (1 - tau) target + tau online after every gradient step; epsilon-greed
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -156,7 +157,7 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
         t, b = days_shape(days)
         steps_per_epoch, mb = replay.plan(t * b)
         n_steps = config.num_epochs * steps_per_epoch
-        q_fn = lambda obs: net.apply(runner.params["agent"], obs)  # noqa: E731 (the policy that emitted the days)
+        q_fn = functools.partial(net.apply, runner.params["agent"])  # the policy that emitted the days
         buffer = buffer_add(runner.buffer, replay.store(key, q_fn, eps_at(runner.day), flatten_days(days)))
 
         def sgd_step(carry, k):

@@ -139,9 +139,8 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     if humans is None:  # shapes only: the checkpoint overwrites it
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid), hp)
     env = surrogate_env(scn, is_cav, static, humans, p0, env_kwargs)
-    probe, _ = learner_for(alg, alg_config, env, cfg, 1, mode)
-    plan = plan_rounds(cfg, mode, probe.days_per_iter)
     given = alg_config  # the hint and the probe's learner start from it: fitting changes it
+    plan = plan_rounds(cfg, mode, learner_for(alg, given, env, cfg, 1, mode)[0].days_per_iter)
     learner, alg_config = learner_for(alg, given, env, cfg, plan.n_rounds, mode, plan.iters)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
     clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg, given))
