@@ -33,7 +33,7 @@ from urb_jax.algorithms.frames import frame_obs, turn_positions, unacted
 from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import MLP, hidden_layers, make_agent_net, obs_scale, take_agents
 from urb_jax.algorithms.policy import entropy, masked
-from urb_jax.algorithms.updates import adam_step, days_shape, flatten_days, gae, minibatch_days
+from urb_jax.algorithms.updates import adam_step, clipped_adam, days_shape, flatten_days, gae, minibatch_days
 from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 
 
@@ -149,7 +149,7 @@ def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) 
     policy_for = make_policy(config, env, centralised)
     mask = jnp.asarray(env.action_mask)
     n_envs, n_days = config.num_envs, config.agent_frames_per_batch
-    tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
+    tx = clipped_adam(config.max_grad_norm, config.lr)
 
     def loss_fn(params: Any, batch: Batch):
         logits = masked(actor.apply(params["actor"], batch.obs), mask)

@@ -19,13 +19,12 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import optax
 
 from urb_jax.algorithms.configs import IPPOStarConfig
 from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import make_per_cav_mlp, take_agents
 from urb_jax.algorithms.policy import entropy, masked
-from urb_jax.algorithms.updates import adam_step, days_shape
+from urb_jax.algorithms.updates import adam_step, clipped_adam, days_shape
 from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 
 
@@ -80,7 +79,7 @@ def make_learner(config: IPPOStarConfig, env: RoutingEnv) -> Learner:
     mask = jnp.asarray(env.action_mask)
     n_days = days_per_update(config)
     n_iters = max(1, config.num_episodes // n_days)
-    tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
+    tx = clipped_adam(config.max_grad_norm, config.lr)
 
     def agent_update(params: Any, opt_state: Any, obs: jnp.ndarray, action: jnp.ndarray,
                      logp_old: jnp.ndarray, reward: jnp.ndarray, mask_c: jnp.ndarray, key: jax.Array,

@@ -17,7 +17,6 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import optax
 
 from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
 from urb_jax.algorithms.configs import IQLConfig
@@ -25,7 +24,15 @@ from urb_jax.algorithms.frames import make_replay
 from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import hidden_layers, make_agent_net
 from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
-from urb_jax.algorithms.updates import adam_step, days_shape, flatten_days, polyak, select_tree, update_plan
+from urb_jax.algorithms.updates import (
+    adam_step,
+    clipped_adam,
+    days_shape,
+    flatten_days,
+    polyak,
+    select_tree,
+    update_plan,
+)
 from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 
 
@@ -72,7 +79,7 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
     replay = make_replay(config.frames, env, config.num_minibatches, config.minibatch_size, capacity)
     total_days = n_days * config.n_iters
     eps_at = linear_schedule(config.eps_init, config.eps_end, config.exploration_fraction * total_days)
-    tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
+    tx = clipped_adam(config.max_grad_norm, config.lr)
 
     def loss_fn(params: Any, target: Any, batch: Day) -> jnp.ndarray:
         return td_loss(net.apply, params, target, batch, mask, config.gamma)

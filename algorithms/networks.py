@@ -18,6 +18,43 @@ ACTIVATIONS: dict[str, Callable[[jnp.ndarray], jnp.ndarray]] = {
 }
 
 
+@jax.custom_vjp
+def kernel_layout_dot(x: jnp.ndarray, kernel: jnp.ndarray) -> jnp.ndarray:
+    """x [..., I] @ kernel [I, O], with the kernel's gradient computed as x^T g in the kernel's own
+    [I, O] layout. JAX's dot transpose builds it as (g^T x)^T, and for a wide kernel XLA then
+    transposes O x I elements in every pass of the update; in the kernel's layout the gradient
+    (a plain product for one-row minibatches) fuses into the optimiser's passes. For URB's QMIX
+    hypernetwork (the state -> C x 192 weights, C^2 x 960 parameters) this is most of its cost."""
+    return jax.lax.dot_general(x, kernel, (((x.ndim - 1,), (0,)), ((), ())))
+
+
+def _kernel_layout_fwd(x: jnp.ndarray, kernel: jnp.ndarray):
+    return kernel_layout_dot(x, kernel), (x, kernel)
+
+
+def _kernel_layout_bwd(res: tuple[jnp.ndarray, jnp.ndarray], g: jnp.ndarray):
+    x, kernel = res
+    dx = jax.lax.dot_general(g, kernel, (((g.ndim - 1,), (1,)), ((), ())))
+    rows_x, rows_g = x.reshape(-1, x.shape[-1]), g.reshape(-1, g.shape[-1])  # [R, I], [R, O]
+    return dx, jax.lax.dot_general(rows_x, rows_g, (((0,), (0,)), ((), ())))
+
+
+kernel_layout_dot.defvjp(_kernel_layout_fwd, _kernel_layout_bwd)
+
+
+def _dense_dot(lhs: jnp.ndarray, rhs: jnp.ndarray, dimension_numbers: Any, precision: Any = None,
+               preferred_element_type: Any = None) -> jnp.ndarray:
+    """nn.Dense's dot_general hook (it always contracts the input's last axis with the kernel's first)."""
+    assert dimension_numbers == (((lhs.ndim - 1,), (0,)), ((), ())), dimension_numbers
+    return kernel_layout_dot(lhs, rhs)
+
+
+def WideDense(features: int, name: str | None = None) -> nn.Dense:  # noqa: N802 - a layer, named as one
+    """nn.Dense (same parameters, names and initialisation) whose kernel gradient keeps the kernel's
+    layout: for layers with very wide kernels, such as QMIX's hypernetworks."""
+    return nn.Dense(features, name=name, dot_general=_dense_dot)
+
+
 class MLP(nn.Module):
     hidden: Sequence[int]
     out: int

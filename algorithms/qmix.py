@@ -21,15 +21,22 @@ from typing import Any, NamedTuple
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
-import optax
 
 from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
 from urb_jax.algorithms.configs import MixerConfig
 from urb_jax.algorithms.frames import make_replay
 from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
-from urb_jax.algorithms.networks import hidden_layers, make_agent_net, obs_scale
+from urb_jax.algorithms.networks import WideDense, hidden_layers, make_agent_net, obs_scale
 from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
-from urb_jax.algorithms.updates import adam_step, days_shape, flatten_days, polyak, select_tree, update_plan
+from urb_jax.algorithms.updates import (
+    adam_step,
+    clipped_adam,
+    days_shape,
+    flatten_days,
+    polyak,
+    select_tree,
+    update_plan,
+)
 from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 
 
@@ -44,18 +51,19 @@ class QMixer(nn.Module):
 
     def hyper(self, name: str, out: int, state: jnp.ndarray) -> jnp.ndarray:
         if self.hypernet_hidden <= 0:
-            return nn.Dense(out, name=name)(state)
-        return nn.Dense(out, name=name)(nn.relu(nn.Dense(self.hypernet_hidden, name=f"{name}_hidden")(state)))
+            return WideDense(out, name=name)(state)
+        hidden = nn.relu(WideDense(self.hypernet_hidden, name=f"{name}_hidden")(state))
+        return WideDense(out, name=name)(hidden)
 
     @nn.compact
     def __call__(self, q: jnp.ndarray, state: jnp.ndarray) -> jnp.ndarray:
         """q [..., C] chosen-action values, state [..., S] -> Q_tot [...]."""
         e = self.embed_dim
         w1 = jnp.abs(self.hyper("hyper_w1", self.n_agents * e, state)).reshape(*q.shape, e)
-        b1 = nn.Dense(e, name="hyper_b1")(state)
+        b1 = WideDense(e, name="hyper_b1")(state)
         hidden = nn.elu(jnp.einsum("...c,...ce->...e", q, w1) + b1)
         w2 = jnp.abs(self.hyper("hyper_w2", e, state))
-        v = nn.Dense(1, name="hyper_v2")(nn.relu(nn.Dense(e, name="hyper_v1")(state)))[..., 0]
+        v = nn.Dense(1, name="hyper_v2")(nn.relu(WideDense(e, name="hyper_v1")(state)))[..., 0]
         return (hidden * w2).sum(-1) + v
 
 
@@ -129,7 +137,7 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
     replay = make_replay(config.frames, env, config.num_minibatches, config.minibatch_size, capacity)
     eps_at = linear_schedule(config.eps_init, config.eps_end,
                              config.exploration_fraction * n_days * config.n_iters)
-    tx = optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr))
+    tx = clipped_adam(config.max_grad_norm, config.lr, fused_clip=mixer == "qmix")
 
     q_scale = 1.0 / max(n_cav, 1) if config.q_scale == "own" else 1.0
 

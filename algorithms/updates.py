@@ -1,5 +1,5 @@
-"""Update mechanics shared by the learners: one Adam step, target-network updates, URB's and
-PureJaxRL's update plans, GAE, and [T, B] day-array reshaping."""
+"""Update mechanics shared by the learners: the clipped Adam and one step of it, target-network
+updates, URB's and PureJaxRL's update plans, GAE, and [T, B] day-array reshaping."""
 
 from __future__ import annotations
 
@@ -9,6 +9,30 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import optax
+
+
+def clip_by_global_norm(max_norm: float) -> optax.GradientTransformation:
+    """optax.clip_by_global_norm's rule (above `max_norm`, gradients / (norm / max_norm)) as one
+    division by a scalar. optax's per-element select between g and g / norm * max_norm makes XLA
+    write the clipped gradient out and read it back in each of Adam's passes; a scalar divisor
+    fuses into them. On URB's QMIX hypernetwork (82 M parameters on Nemours) this, with
+    `networks.kernel_layout_dot`, makes training about 3x faster on a CPU (docs/algorithms.md).
+    The values are optax's up to float rounding (exactly, for max_norm 1, outside fusion)."""
+    def update(updates: Any, state: Any, params: Any = None) -> tuple[Any, Any]:
+        norm = optax.tree.norm(updates)
+        divisor = jnp.where(norm < max_norm, 1.0, norm / max_norm)
+        return jax.tree_util.tree_map(lambda g: g / divisor.astype(g.dtype), updates), state
+
+    return optax.GradientTransformation(lambda params: optax.EmptyState(), update)
+
+
+def clipped_adam(max_grad_norm: float, lr: float, *, fused_clip: bool = False
+                 ) -> optax.GradientTransformation:
+    """The learners' optimiser, as URB's TorchRL scripts: global-norm clip, then Adam. `fused_clip`
+    (QMIX, whose hypernetwork makes the clip's memory traffic the cost of a step) uses the form
+    above; the others keep optax's, so that their records stay byte-identical to earlier runs."""
+    clip = clip_by_global_norm(max_grad_norm) if fused_clip else optax.clip_by_global_norm(max_grad_norm)
+    return optax.chain(clip, optax.adam(lr))
 
 
 def adam_step(tx: optax.GradientTransformation, loss_fn: Callable[..., Any], params: Any, opt_state: Any,
