@@ -1,6 +1,8 @@
 """Results folder: atomic record parts, compaction, refusal to overwrite, CLI and leaderboard."""
 
 import json
+import shutil
+import subprocess
 
 import numpy as np
 import pandas as pd
@@ -10,7 +12,7 @@ from fakeday import FakeDay
 from urb_jax.commands.cli import main
 from urb_jax.experiment.protocol import DayRecord
 from urb_jax.experiment.run import run_baseline
-from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir
+from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir, source_commit
 from urb_jax.reporting.leaderboard import aggregate, collect
 from urb_jax.reporting.records import (
     PARTS_DIR,
@@ -171,3 +173,30 @@ def test_a_baseline_runs_each_distinct_day_once(tmp_path):
         choices[[pos[a] for a in rows["agent"]]] = rows["action"].to_numpy()
         want = FakeDay()(scn, choices, seed=42).travel_time[[pos[a] for a in rows["agent"]]]
         np.testing.assert_allclose(rows["travel_time"].to_numpy(), want, rtol=1e-6, err_msg=f"day {day}")
+
+
+def test_source_commit_names_the_checkout_commit(tmp_path):
+    """A run records the commit of the code that made it: HEAD in a git checkout, '+changes' when
+    tracked files differ; a folder inside another repository (a venv) or outside any is unknown."""
+    if shutil.which("git") is None:
+        pytest.skip("git is not installed here")
+    repo = tmp_path / "repo"
+    repo.mkdir()
+
+    def git(*args):
+        return subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], cwd=repo,
+                              check=True, capture_output=True, text=True).stdout.strip()
+
+    git("init", "-q")
+    (repo / "a.py").write_text("x = 1\n")
+    git("add", "a.py")
+    git("commit", "-q", "-m", "one")
+    head = git("rev-parse", "HEAD")
+    commit = source_commit.__wrapped__  # uncached
+    assert commit(repo) == head and len(head) == 40
+    (repo / "a.py").write_text("x = 2\n")
+    assert commit(repo) == head + "+changes"
+    (repo / "venv").mkdir()
+    assert commit(repo / "venv") == "unknown (not a git checkout)"
+    (tmp_path / "plain").mkdir()
+    assert commit(tmp_path / "plain") == "unknown (not a git checkout)"

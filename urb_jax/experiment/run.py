@@ -58,6 +58,7 @@ from urb_jax.experiment.run_folder import (
     create_results_dir,
     lock_run,
     mark_done,
+    source_commit,
     train_run_names,
     versions,
     write_config,
@@ -355,6 +356,7 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
     wall = time.perf_counter() - t0
     for c in configs:
         c["resumed"] = c.get("resumed", 0) + 1
+        c["resumed_with_source"] = source_commit()  # the code that finished it (versions: that started it)
     walls = [wall + c.get("wall_time_s", 0.0) for c in configs]  # the killed runs' time included
     return _finish_group(folders, configs, result, setup.task, walls)
 

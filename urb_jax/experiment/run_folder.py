@@ -12,6 +12,7 @@ import os
 import platform
 import re
 import shutil
+import subprocess
 import tempfile
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -130,9 +131,32 @@ def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = F
     return path
 
 
+SOURCE_ROOT = Path(__file__).resolve().parents[2]  # the checkout this process imported urb_jax from
+
+
+@functools.cache
+def source_commit(root: Path = SOURCE_ROOT) -> str:
+    """The git commit of the urb-jax source this process runs, '+changes' when its tracked files
+    differ from it: package metadata says 0.1.0 for every commit, and a run's numbers can depend on
+    the commit (docs/algorithms.md: QMIX's faster step changed its float rounding)."""
+    def git(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=10)
+
+    try:
+        top = git("rev-parse", "--show-toplevel")  # not an enclosing repository (a venv inside one)
+        if top.returncode != 0 or Path(top.stdout.strip()).resolve() != root.resolve():
+            return "unknown (not a git checkout)"
+        head = git("rev-parse", "HEAD")
+        changed = git("diff", "--quiet", "HEAD", "--").returncode != 0
+    except (OSError, subprocess.SubprocessError):
+        return "unknown (git not available)"
+    return head.stdout.strip() + ("+changes" if changed else "")
+
+
 def versions() -> dict[str, str]:
-    """Installed versions (from package metadata: importing libsumo just to ask is costly)."""
-    out = {"python": platform.python_version()}
+    """Installed versions (from package metadata: importing libsumo just to ask is costly) and the
+    source's git commit."""
+    out = {"python": platform.python_version(), "urb-jax source": source_commit()}
     for dist in ("urb-jax", "jax", "numpy", "pandas", "pyarrow", "eclipse-sumo", "libsumo", "janux"):
         try:
             out[dist] = version(dist)
