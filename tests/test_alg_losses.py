@@ -7,9 +7,11 @@ import math
 import sys
 from pathlib import Path
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 from urb_jax.algorithms.buffer import buffer_add, buffer_init, buffer_sample
@@ -116,8 +118,6 @@ def test_qmix_mixer_matches_reference_and_is_monotonic():
 def test_wide_dense_is_dense_with_the_same_gradients():
     """WideDense only changes how the kernel's gradient is laid out: same parameters, outputs and
     gradients as nn.Dense, with and without leading axes, and under vmap (seeds)."""
-    import flax.linen as nn
-
     wide, plain = WideDense(6, name="w"), nn.Dense(6, name="w")
     params = plain.init(jax.random.PRNGKey(0), jnp.zeros(5))
     assert jax.tree_util.tree_structure(wide.init(jax.random.PRNGKey(0), jnp.zeros(5))) == \
@@ -159,8 +159,6 @@ def test_qmix_mixer_gradients_match_plain_autodiff(hidden):
 def test_clip_by_global_norm_follows_optax_rule():
     """Above max_norm the whole tree is scaled to norm max_norm (optax's rule, the same values for
     max_norm 1); below it, gradients pass unchanged."""
-    import optax
-
     tree = {"a": jnp.array([3.0, -4.0]), "b": jnp.array([[12.0]])}  # global norm 13
     for max_norm in (1.0, 2.5, 20.0):
         got, _ = clip_by_global_norm(max_norm).update(tree, optax.EmptyState())

@@ -354,9 +354,8 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
                 save_human_phase(f, human)
         result = _train(setup, args, seeds, folders, ex, human, progress, None)
     wall = time.perf_counter() - t0
-    for c in configs:
-        c["resumed"] = c.get("resumed", 0) + 1
-        c["resumed_with_source"] = source_commit()  # the code that finished it (versions: that started it)
+    for c in configs:  # resumed_with_source: the code that finished it (versions: the code that started it)
+        c.update(resumed=c.get("resumed", 0) + 1, resumed_with_source=source_commit())
     walls = [wall + c.get("wall_time_s", 0.0) for c in configs]  # the killed runs' time included
     return _finish_group(folders, configs, result, setup.task, walls)
 

@@ -143,14 +143,14 @@ def source_commit(root: Path = SOURCE_ROOT) -> str:
         return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=10)
 
     try:
-        top = git("rev-parse", "--show-toplevel")  # not an enclosing repository (a venv inside one)
-        if top.returncode != 0 or Path(top.stdout.strip()).resolve() != root.resolve():
+        found = git("rev-parse", "--show-toplevel", "HEAD")
+        lines = found.stdout.splitlines()  # [top level, HEAD]; a venv inside a repository is not one
+        if found.returncode != 0 or len(lines) != 2 or Path(lines[0]).resolve() != root.resolve():
             return "unknown (not a git checkout)"
-        head = git("rev-parse", "HEAD")
         changed = git("diff", "--quiet", "HEAD", "--").returncode != 0
     except (OSError, subprocess.SubprocessError):
         return "unknown (git not available)"
-    return head.stdout.strip() + ("+changes" if changed else "")
+    return lines[1] + ("+changes" if changed else "")
 
 
 def versions() -> dict[str, str]:
