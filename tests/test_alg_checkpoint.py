@@ -16,7 +16,14 @@ from urb_jax.algorithms import iql
 from urb_jax.algorithms.configs import IQLConfig
 from urb_jax.algorithms.registry import ALGORITHMS, load_algo_config
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.checkpoints import restore_checkpoint, save_checkpoint
+from urb_jax.experiment.checkpoints import (
+    RoundMeta,
+    restore_checkpoint,
+    restore_round,
+    save_checkpoint,
+    save_round,
+)
+from urb_jax.surrogate import SumoSample
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from standin import make_env
@@ -40,6 +47,26 @@ def test_checkpoint_round_trip(grid_scenario, tmp_path):
     obs = env.reset(jax.random.PRNGKey(0))[0]
     np.testing.assert_array_equal(policy(params)(jax.random.PRNGKey(0), obs),
                                   policy(restored["params"])(jax.random.PRNGKey(0), obs))
+
+
+def test_a_round_restores_into_shapes_alone(tmp_path):
+    """A resume restores the group's state into `jax.eval_shape`'s structs: no fresh state is made
+    beside the restored one (URB's QMIX config1: GBs a seed), and the leaves come back as saved,
+    as jax arrays that are not weakly typed (the jitted round sees the types it was compiled for)."""
+
+    def make():
+        return {"w": jax.numpy.arange(6.0).reshape(2, 3) * 1.5, "n": jax.numpy.int32(7),
+                "k": (jax.numpy.ones(4, jax.numpy.uint32),)}
+
+    state = make()
+    sample = SumoSample(np.zeros((1, 3), np.int32), np.ones((1, 3), np.float32), np.ones((1, 3), bool))
+    save_round(tmp_path, state, [sample], RoundMeta(2, 8, [0], ["a"], [1], [[{"round": 1}], ]))
+    shapes = jax.eval_shape(make)
+    restored, samples, meta = restore_round(tmp_path, shapes, [0])
+    assert meta.rounds_done == 2 and np.array_equal(samples[0].travel_time, sample.travel_time)
+    for a, b in zip(jax.tree_util.tree_leaves(state), jax.tree_util.tree_leaves(restored), strict=True):
+        assert isinstance(b, jax.Array) and b.dtype == a.dtype and b.shape == a.shape and not b.weak_type
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_shipped_configs_load_with_urb_values():

@@ -116,7 +116,11 @@ def restore_round(folder: Path, target: Any, seeds: Sequence[int]
 
 
 def _restore_state(path: Path, target: Any) -> Any:
-    """Orbax stores the state as numbered leaves; `target` (a fresh state) gives the tree."""
+    """Orbax stores the state as numbered leaves; `target` gives the tree, shapes and dtypes (arrays
+    or, better, `jax.eval_shape`'s structs: a resume then holds the state once, not a fresh copy
+    beside the restored one). Leaves come back as jax arrays, never weakly typed (as saved)."""
     leaves, treedef = jax.tree_util.tree_flatten(target)
-    flat = restore_checkpoint(path, {f"{i:05d}": np.asarray(x) for i, x in enumerate(leaves)})
-    return jax.tree_util.tree_unflatten(treedef, [jnp.asarray(flat[f"{i:05d}"]) for i in range(len(leaves))])
+    abstract = {f"{i:05d}": jax.ShapeDtypeStruct(np.shape(x), x.dtype) for i, x in enumerate(leaves)}
+    flat = restore_checkpoint(path, abstract)
+    restored = [jnp.asarray(flat.pop(f"{i:05d}")) for i in range(len(leaves))]
+    return jax.tree_util.tree_unflatten(treedef, restored)

@@ -230,8 +230,8 @@ class HybridTrainer:
 
     def resume(self) -> int:
         """The group's newest checkpoint; every seed's record parts written after it are dropped."""
-        state, self.samples, meta = restore_round(self.g.folders[0], self.fresh_state()._asdict(),
-                                                  self.g.seeds)
+        shapes = jax.eval_shape(self.fresh_state)._asdict()  # no fresh state beside the restored one
+        state, self.samples, meta = restore_round(self.g.folders[0], shapes, self.g.seeds)
         self.state = TrainState(**state)
         self.rounds_logs, self.sumo_done = meta.rounds, meta.sumo_days
         for writer, parts in zip(self.writers, meta.record_parts, strict=True):
