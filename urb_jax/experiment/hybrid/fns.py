@@ -27,7 +27,10 @@ ActFn = Callable[[Runner, jax.Array, EnvState], tuple[jnp.ndarray, jnp.ndarray, 
 
 
 class TrainerFns(NamedTuple):
-    """Jitted (except `split_p`) and vmapped over seeds."""
+    """Jitted (except `split_p`) and vmapped over seeds. `sur_round`, `sur_round_adapt` and `update`
+    donate their runner (and population): XLA then writes the new learner state over the old, so a
+    round holds the state about once less at its peak (URB's QMIX config1: GBs a seed; measured in
+    hybrid/memory.py). The caller must not read what it passed."""
 
     # surrogate iterations, one per key: (runner [S], keys [S, L, 2]) -> (runner, metrics [S, L])
     sur_round: Callable[[Runner, jax.Array], tuple[Runner, Metrics]]
@@ -113,10 +116,10 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
         return jax.vmap(one)(k_start)
 
     return TrainerFns(
-        sur_round=jax.jit(jax.vmap(_sur_round)),
-        sur_round_adapt=jax.jit(jax.vmap(_sur_round_adapt)),
+        sur_round=jax.jit(jax.vmap(_sur_round), donate_argnums=0),
+        sur_round_adapt=jax.jit(jax.vmap(_sur_round_adapt), donate_argnums=(0, 1)),
         iter_keys=jax.jit(jax.vmap(lambda k: jax.random.split(k, n_iters_round))),
-        update=jax.jit(jax.vmap(learner.update_from_days)),
+        update=jax.jit(jax.vmap(learner.update_from_days), donate_argnums=0),
         act_explore=jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, True))),
         act_greedy=jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, False))),
         sumo_step=jax.jit(jax.vmap(_sumo_step)),

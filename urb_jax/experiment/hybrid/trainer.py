@@ -248,7 +248,9 @@ class HybridTrainer:
     def set_params(self) -> None:
         """The training envs of every seed's runner get the seed's current surrogate parameters."""
         s = self.state
-        runner = s.runner._replace(env_params=s.params)  # [S, ...]; collect gives each env a copy
+        # [S, ...]; collect gives each env a copy. A copy here too: the rounds donate the runner,
+        # and the surrogate's own parameters (s.params) must outlive it.
+        runner = s.runner._replace(env_params=jax.tree_util.tree_map(jnp.copy, s.params))
         self.state = s._replace(runner=runner)
 
     # ---- a round
