@@ -159,10 +159,11 @@ def test_the_probe_scales_one_environment_to_the_iteration():
 
 @pytest.mark.slow
 def test_a_big_learner_is_timed_before_training(tmp_path, capsys, monkeypatch):
-    """Above PROBE_PARAMS a run says its cost before the first round; the probe has its own runner
-    and key, so the records are byte-identical to the same run without it."""
+    """Above PROBE_PARAMS a run says its memory and cost before the first round; the probe has its
+    own runner and key, so the records are byte-identical to the same run without it. A resume
+    probes again, before restoring the state, for the rounds it has left."""
     from urb_jax.experiment.hybrid import clock
-    from urb_jax.experiment.run import run_train
+    from urb_jax.experiment.run import resume_train, run_train
 
     hyb = {"train_days": 20, "num_envs": 2, "surrogate_days_per_round": 8, "sumo_days_per_round": 2,
            "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
@@ -172,21 +173,32 @@ def test_a_big_learner_is_timed_before_training(tmp_path, capsys, monkeypatch):
     (tmp_path / "hyb.json").write_text(json.dumps(hyb))
     (tmp_path / "qmix.json").write_text(json.dumps(alg))
 
+    probe_line = ("estimate before training (one environment's iteration timed here, times the 4 of an "
+                  "iteration)")
+
+    def said() -> list[str]:
+        err = capsys.readouterr().err
+        return [line for line in err.splitlines() if line.startswith(("estimate", "memory"))]
+
     def run(name: str) -> list[str]:
         run_train(alg="qmix", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"), seeds=[0, 1],
                   alg_conf=str(tmp_path / "qmix.json"), results_dir=str(tmp_path / name), progress=False,
                   executor=FakeExecutor(), stop_after_round=1)
-        return [line for line in capsys.readouterr().err.splitlines() if line.startswith("estimate")]
+        return said()
 
     plain = run("plain")
     monkeypatch.setattr(clock, "PROBE_PARAMS", 0)
     probed = run("probed")
     assert [line.split(":")[0] for line in plain] == ["estimate"]
-    assert [line.split(":")[0] for line in probed] == [
-        "estimate before training (one environment's iteration timed here, times the 4 of an iteration)",
-        "estimate"]
+    assert [line.split(":")[0] for line in probed] == ["memory", probe_line, "estimate"]
+    assert "GB for 2 seed(s)" in probed[0] and "the 2 round(s) left" in probed[1]
     for seed in ("s0", "s1"):  # round 1's SUMO days (records) were chosen by the trained policy
         (a,), (b,) = ((tmp_path / name).glob(f"qmix_*_{seed}") for name in ("plain", "probed"))
         files = sorted(p.relative_to(a) for p in a.glob("records.parts/*"))
         assert len(files) == 2 and files == sorted(p.relative_to(b) for p in b.glob("records.parts/*"))
         assert all((a / f).read_bytes() == (b / f).read_bytes() for f in files)
+    resume_train("qmix_hybrid_urb_grid_test_s0", results_dir=str(tmp_path / "probed"), progress=False,
+                 executor=FakeExecutor())
+    resumed = said()
+    assert [line.split(":")[0] for line in resumed[:2]] == ["memory", probe_line]
+    assert "the 1 round(s) left" in resumed[1]

@@ -23,16 +23,34 @@ MB = 1024**2
 def test_the_state_is_counted_from_shapes_and_compared_with_room_for_the_peak():
     state = {"w": jax.ShapeDtypeStruct((1024, 1024), np.float32), "n": jax.ShapeDtypeStruct((256,), np.int32)}
     assert memory.tree_bytes(state) == 4 * MB + 1024
-    memory.check_fits(state, seeds=3, extra=0, what="x", available=30 * MB)  # 3 x 8 MB at the peak: fits
+    peak = memory.tree_bytes(state) * memory.PEAK_OVER_STATE  # one seed at its peak (16 MB and a bit)
+    note = memory.check_fits(state, seeds=3, what="x", available=int(3 * peak) + 1)  # fits, just
+    assert note.startswith("memory: the learner's state is 0.00 GB a seed") and "on this machine" in note
     with pytest.raises(UrbJaxError) as err:
-        memory.check_fits(state, seeds=5, extra=1, what="qmix on nowhere", available=30 * MB)
-    text = str(err.value)  # 6 x 8 MB > 30 MB; 3 states fit, one of them the probe's: 2 seeds at a time
+        memory.check_fits(state, seeds=5, what="qmix on nowhere", available=int(2.5 * peak))
+    text = str(err.value)  # 5 seeds' peaks > 2.5: 2 seeds at a time fit
     assert text.startswith("qmix on nowhere: the learner's state is 0.0 GB a seed")
     assert "Fix: --set hybrid.max_vmapped_seeds=2 (trains 2 seed(s) at a time)" in text
     with pytest.raises(UrbJaxError) as err:  # not even one seed: no max_vmapped_seeds to offer
-        memory.check_fits(state, seeds=1, extra=0, what="x", available=5 * MB)
+        memory.check_fits(state, seeds=1, what="x", available=int(0.9 * peak))
     assert "max_vmapped_seeds" not in str(err.value) and "--alg-conf hybrid" in str(err.value)
     assert memory.available_bytes() > 0
+
+
+def test_on_an_accelerator_its_own_free_memory_counts(monkeypatch):
+    """A GPU's learner lives in the GPU's memory: JAX's memory_stats, not the host's MemAvailable."""
+
+    class Gpu:
+        device_kind = "NVIDIA H100 80GB HBM3"
+
+        def memory_stats(self):
+            return {"bytes_limit": 80 * 1024 * MB, "bytes_in_use": 30 * 1024 * MB, "peak_bytes_in_use": 1}
+
+    monkeypatch.setattr(memory.jax, "devices", lambda: [Gpu()])
+    assert memory.available_bytes() == 50 * 1024 * MB
+    state = {"w": jax.ShapeDtypeStruct((1024, 1024, 1024), np.float32)}  # 4 GB a seed
+    with pytest.raises(UrbJaxError, match=r"and the NVIDIA H100 80GB HBM3 has 50\.0 GB available"):
+        memory.check_fits(state, seeds=5, what="x")  # 5 x 4 GB x PEAK_OVER_STATE > 50 GB
 
 
 def test_a_run_that_would_not_fit_stops_before_training(tmp_path, monkeypatch):
@@ -43,7 +61,7 @@ def test_a_run_that_would_not_fit_stops_before_training(tmp_path, monkeypatch):
            "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
            "refit_days": 4, "refit_steps": 5}
     (tmp_path / "hyb.json").write_text(json.dumps(hyb))
-    with pytest.raises(UrbJaxError, match=r"this machine has 0\.0 GB available"):
+    with pytest.raises(UrbJaxError, match=r"and this machine has 0\.0 GB available"):
         run_train(alg="iql", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"), seeds=[0, 1],
                   results_dir=str(tmp_path / "r"), progress=False, executor=FakeExecutor())
     folders = sorted((tmp_path / "r").glob("iql_*"))

@@ -25,7 +25,7 @@ from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
-from urb_jax.experiment.checkpoints import RoundMeta, restore_round, save_round
+from urb_jax.experiment.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
 from urb_jax.experiment.human_phase import HumanPhase, calibrate, uncalibrated
 from urb_jax.experiment.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns
@@ -94,6 +94,7 @@ class Group:
     keys: GroupKeys
     clock: IterationClock  # times the surrogate iterations, chunk by chunk
     probe: Callable[[], float] | None  # a big learner's one-environment iteration, seconds (clock)
+    memory_note: str  # the learner's memory against what is available (printed with the probe's estimate)
 
     @property
     def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
@@ -150,13 +151,14 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
         one, _ = learner_for(alg, given, env, dataclasses.replace(cfg, num_envs=1), plan.n_rounds, mode,
                              plan.iters)
         probe = functools.partial(probe_seconds, one, jax.random.PRNGKey(0))
-    check_fits(shapes, len(seeds), int(probe is not None), f"{alg} on {scn.name}")
+    memory_note = check_fits(shapes, len(seeds), f"{alg} on {scn.name}")
     fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
     return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,
                  task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
                  np.flatnonzero(is_cav), static, p0,
-                 plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock, probe)
+                 plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock, probe,
+                 memory_note)
 
 
 def _slow_hint(alg: str, alg_config: AlgoConfig) -> str:
@@ -443,15 +445,18 @@ def train_group(
     plan, per_round = g.plan, g.plan.surrogate_days + g.plan.sumo_days
     bar = Progress(g.S * (g.H + plan.n_rounds * per_round + g.E), progress)
     g.clock.note = bar.note
+    found = None if human is not None else latest_checkpoint(folders[0])  # None: resume() says why
+    first = 0 if found is None else found[0]
+    if g.probe is not None and first < plan.n_rounds:  # a big learner: its memory and cost up front,
+        bar.note(g.memory_note)  # the probe run before the group's state exists (hybrid/memory.py)
+        g.clock.start_round(first)
+        g.clock.before_training(g.probe() * g.S * cfg.num_envs, g.S * cfg.num_envs)
     trainer = HybridTrainer(g, executor, writers, bar)
     start = trainer.start(human) if human is not None else trainer.resume()
     bar.update(g.S * (g.H + start * per_round), trainer.tag + ("resume" if human is None else "human"))
     if on_round is not None:  # a resumed group's restored rounds first
         for r in range(start):
             on_round([log[r] for log in trainer.rounds_logs])
-    if g.probe is not None and start < plan.n_rounds:  # a big learner: its cost said up front
-        g.clock.start_round(start)
-        g.clock.before_training(g.probe() * g.S * cfg.num_envs, g.S * cfg.num_envs)
     for r in range(start, plan.n_rounds):
         trainer.run_round(r)
         if on_round is not None:
