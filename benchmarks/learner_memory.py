@@ -4,8 +4,9 @@ The memory check (urb_jax.experiment.hybrid.memory) refuses a run whose learner 
 PEAK_OVER_STATE does not fit in the memory available. This measures what that factor is on a real
 run: `urb-jax train` as a child in a scratch folder, killed (SIGKILL) once its first round is
 checkpointed, then `--resume`d to the end. The child's resident set is sampled every 0.1 s (its
-SUMO worker processes are not in it), and each part's peak is set against the learner state the
-run prints ("memory: the learner's state is ...", big learners only: QMIX config1 on a network with
+SUMO runs in-process here, sumo_workers 1: small on these networks; unlike synthetic_scale.rss_mib,
+no child processes are summed), and each part's peak is set against the learner state the run
+prints ("memory: the learner's state is ...", big learners only: QMIX config1 on a network with
 a hundred CAVs or more).
 
     python benchmarks/learner_memory.py --networks-dir ../shared/networks
@@ -16,7 +17,7 @@ Columns:
   RSS before GB  resident set when the run printed its memory line (after setup, before the state)
   peak GB        the part's peak resident set
   (peak-before)/state   what the state costs at its peak: the check's PEAK_OVER_STATE must cover it
-  check GB       what the memory check counted (state x PEAK_OVER_STATE x (seeds + the probe))
+  check GB       what the memory check counted (state a seed x PEAK_OVER_STATE x seeds)
 """
 
 from __future__ import annotations

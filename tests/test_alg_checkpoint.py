@@ -60,7 +60,7 @@ def test_a_round_restores_into_shapes_alone(tmp_path):
 
     state = make()
     sample = SumoSample(np.zeros((1, 3), np.int32), np.ones((1, 3), np.float32), np.ones((1, 3), bool))
-    save_round(tmp_path, state, [sample], RoundMeta(2, 8, [0], ["a"], [1], [[{"round": 1}], ]))
+    save_round(tmp_path, state, [sample], RoundMeta(2, 8, [0], ["a"], [1], [[{"round": 1}]]))
     shapes = jax.eval_shape(make)
     restored, samples, meta = restore_round(tmp_path, shapes, [0])
     assert meta.rounds_done == 2 and np.array_equal(samples[0].travel_time, sample.travel_time)
