@@ -5,6 +5,7 @@ a kill between rounds and in the middle of a round."""
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -15,7 +16,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fakeday import FakeDay
 
+from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError
+from urb_jax.core.paths import embedded_networks_dir
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.hybrid.trainer import HybridTrainer
 from urb_jax.experiment.run import resume_train, run_train
@@ -209,6 +212,32 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
     pd.testing.assert_frame_equal(read_records(final.folder), ref_rec)
     pd.testing.assert_frame_equal(pd.read_csv(final.folder / "rounds.csv").filter(like="time"),
                                   pd.read_csv(ref.folder / "rounds.csv").filter(like="time"))
+
+
+def test_resume_finds_the_network_from_another_folder(confs, tmp_path, monkeypatch, tiny_iql_reference):
+    """A run started with a relative --networks-dir resumes from another working folder (from the
+    network file it started with); a --networks-dir given to the resume wins, and one whose network
+    has other agents is refused before anything runs."""
+    start, other, results = tmp_path / "start", tmp_path / "other", str(tmp_path / "r")
+    shutil.copytree(embedded_networks_dir() / "urb_grid", start / "nets" / "urb_grid")
+    monkeypatch.chdir(start)
+    (out,) = _train(confs, results, "moved", networks_dir="nets", stop_after_round=1)
+    config_file = out.folder / "exp_config.json"
+    config = json.loads(config_file.read_text())
+    assert config["train_args"]["networks_dir"] == str(start / "nets")
+    config["train_args"]["networks_dir"] = "nets"  # as runs recorded it before: relative to `start`
+    config_file.write_text(json.dumps(config))
+
+    shutil.copytree(start / "nets", other / "nets")
+    agents = other / "nets" / "urb_grid" / "agents.csv"
+    agents.write_text("".join(agents.read_text().splitlines(keepends=True)[:-1]))  # one agent fewer
+    monkeypatch.chdir(other)
+    with pytest.raises(UrbJaxError, match="has 399 agents; the run used 400"):
+        resume_train("moved", results_dir=results, progress=False, executor=FakeExecutor(),
+                     networks_dir="nets")
+    assert latest_checkpoint(out.folder)[0] == 1
+    (final,) = resume_train("moved", results_dir=results, progress=False, executor=FakeExecutor())
+    pd.testing.assert_frame_equal(read_records(final.folder), read_records(tiny_iql_reference[0].folder))
 
 
 def test_sumo_row_under_full_autonomy_has_no_human_mean():

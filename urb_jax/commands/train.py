@@ -45,7 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--id", default=None,
                         help="experiment id (default <alg>_<mode>_<net>_<task>_s<seed>)")
     parser.add_argument("--resume", default=None, metavar="EXP_ID",
-                        help="continue the killed run EXP_ID in --results-dir from its last checkpoint")
+                        help="continue the killed run EXP_ID in --results-dir from its last checkpoint "
+                             "(it finds the network it started with; --networks-dir: where it is now)")
     parser.add_argument("--human-phase-from", default=None, metavar="EXP_ID",
                         help="reuse the human phase (records, human state, calibration days) of run EXP_ID")
     parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
@@ -72,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     if args.resume:
         outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
                             executor_kind=args.executor, ray_address=args.ray_address,
-                            overrides=args.overrides, log=args.log)
+                            overrides=args.overrides, log=args.log, networks_dir=args.networks_dir)
     else:
         seeds = args.seeds or [args.seed]
         outs = run_train(

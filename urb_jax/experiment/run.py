@@ -75,7 +75,7 @@ from urb_jax.experiment.urb_configs import (
     train_override_record,
 )
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env, load_env_config, load_task, load_task_config
-from urb_jax.reporting.records import RecordsWriter, remove_parts
+from urb_jax.reporting.records import RecordsWriter, check_run_network, networks_dir_of, remove_parts
 from urb_jax.reporting.urb_names import baseline_names, names_of, train_names
 from urb_jax.sumo_bridge import DayExecutor, DayResult, InProcessExecutor, MemoExecutor, SumoPool, run_day
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
@@ -247,8 +247,9 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     task_conf, alg_conf, env_conf, hybrid_conf = map(_resolved, (task_conf, alg_conf, env_conf, hybrid_conf))
     args: TrainArgs = {
         "alg": canonical(alg), "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
-        "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode, "networks_dir": networks_dir,
-        "train_days": train_days, "executor": executor_kind, "ray_address": ray_address,
+        "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode,
+        "networks_dir": _absolute(networks_dir), "train_days": train_days, "executor": executor_kind,
+        "ray_address": ray_address,
         "drop_unroutable": drop_unroutable, "overrides": list(overrides or []), "log": log}
     t0 = time.perf_counter()
     setup = load_setup(args)
@@ -284,6 +285,11 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
                              stop_after_round)
 
 
+def _absolute(folder: str | None) -> str | None:
+    """A --networks-dir made absolute, so that a `--resume` from another folder finds the network."""
+    return None if folder is None else str(Path(folder).expanduser().resolve())
+
+
 def _resolved(config: str) -> str:
     """A config given as a file path, made absolute (a `--resume` from another folder finds it);
     a config id as it is."""
@@ -312,12 +318,13 @@ def _seed_configs(config: dict[str, Any], args: TrainArgs, seeds: list[int], fol
 def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
                  executor: DayExecutor | None = None, executor_kind: str | None = None,
                  ray_address: str | None = None, overrides: list[str] | None = None,
-                 log: str | None = None) -> list[RunResult]:
+                 log: str | None = None, networks_dir: str | None = None) -> list[RunResult]:
     """Continue results/<exp_id>/ (and the seeds trained together with it) from the group's newest
     checkpoint, with the recorded arguments (and the recorded SUMO executor unless `executor_kind`
     overrides it); one result per seed of the group. The recorded `--set` overrides are
     re-applied; `overrides` given here must be the same ones (`check_resume_overrides`). `log`:
-    the round logger (default: the recorded one)."""
+    the round logger (default: the recorded one). `networks_dir`: where the network is now (default:
+    the folder of the network file the run started with)."""
     enable_compile_cache()
     folder = Path(results_dir) / check_exp_id(exp_id)
     if not (folder / CONFIG_FILE).is_file():
@@ -342,7 +349,9 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
         args = {**args, "log": log}
     check_logger(args.get("log"))
     seeds = [c["train_args"]["seed"] for c in configs]
+    args = {**args, "networks_dir": networks_dir_of(configs[0], networks_dir)}
     setup = load_setup(args)
+    check_run_network(folder / CONFIG_FILE, configs[0], setup.scn.n_agents, setup.scn.net_file)
     with _stops_cleanly(folders), \
             _executor(executor, setup.hyb, folders[0], executor_kind or args.get("executor", "pool"),
                       ray_address or args.get("ray_address")) as ex:

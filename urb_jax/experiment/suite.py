@@ -117,7 +117,7 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
         shared = {} if "human_phase_from" in run.kwargs else {"human_phase_candidates": candidates}
         if state == "stopped" and run.kind == "train":
             resume_train(run.folder_names()[0], results_dir=str(results_dir), progress=progress,
-                         executor=run.kwargs.get("executor"))
+                         executor=run.kwargs.get("executor"), networks_dir=run.kwargs.get("networks_dir"))
         elif state != "done":  # a stopped baseline has no checkpoint: it starts again in its own folder
             start = run_train if run.kind == "train" else run_baseline
             again = {"overwrite": True} if state == "stopped" else {}

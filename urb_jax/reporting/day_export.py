@@ -23,7 +23,7 @@ from urb_jax.city.routes import RouteParams
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.atomic import write_text
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.reporting.records import read_records, run_config
+from urb_jax.reporting.records import check_run_network, networks_dir_of, read_records, run_config
 from urb_jax.sumo_bridge.tripinfo import insertion_order
 
 VEHICLE_ATTRS = ('departLane="first" departPos="base" departSpeed="0" '
@@ -50,16 +50,14 @@ def day_routes_xml(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray) -> st
 def scenario_of_run(folder: str | os.PathLike, networks_dir: str | None = None) -> Scenario:
     """The Scenario a run used, rebuilt from its exp_config.json (network, env seed, routes, demand)."""
     cfg = run_config(folder)
-    nets = networks_dir or cfg.get("train_args", {}).get("networks_dir")
+    nets = networks_dir_of(cfg, networks_dir)
     params = RouteParams(number_of_paths=int(cfg["number_of_paths"]), beta=float(cfg["path_gen_beta"]),
                          num_samples=int(cfg["num_samples"]))
     scn = load_scenario(cfg["network"], networks_dir=nets, env_seed=int(cfg["env_seed"]), route_params=params,
                         drop_unroutable=bool(cfg.get("drop_unroutable", False)))
     scn = scale_demand(scn, float(cfg.get("demand_scale", 1.0)), seed=int(cfg["env_seed"]),
                        mode=cfg.get("demand_mode", "auto"), jitter_s=int(cfg.get("demand_jitter_s", 60)))
-    if scn.n_agents != int(cfg.get("num_agents", scn.n_agents)):
-        raise UrbJaxError(f"{Path(folder) / 'exp_config.json'}: num_agents {cfg['num_agents']} but the "
-                          f"rebuilt scenario has {scn.n_agents}. Fix: pass the --networks-dir the run used.")
+    check_run_network(Path(folder) / "exp_config.json", cfg, scn.n_agents, scn.net_file)
     return scn
 
 

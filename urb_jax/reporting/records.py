@@ -162,6 +162,26 @@ def run_config(folder: str | os.PathLike) -> dict[str, Any]:
     return json.loads(path.read_text())
 
 
+def networks_dir_of(config: dict[str, Any], given: str | None = None) -> str | None:
+    """Where a run's network is looked for again (a resume, an export): `given` (the network moved),
+    else the folder holding the network file the run used (older runs recorded
+    --networks-dir as typed, relative to the folder they were started from), else the recorded one."""
+    if given:
+        return str(Path(given).expanduser().resolve())
+    net_file = Path(config.get("net_file") or "")
+    if net_file.is_file() and net_file.parent.name == config.get("network"):
+        return str(net_file.parent.parent)
+    return config.get("train_args", {}).get("networks_dir")
+
+
+def check_run_network(config_file: Path, config: dict[str, Any], n_agents: int, net_file: str) -> None:
+    """The network found again must be the run's own: its checkpoints and records have its agents."""
+    if n_agents != int(config.get("num_agents", n_agents)):
+        raise UrbJaxError(f"{config_file}: the network found at {net_file} has {n_agents} agents; the run "
+                          f"used {config['num_agents']} ({config.get('net_file')}). Fix: pass the "
+                          "--networks-dir that holds the run's own network.")
+
+
 def finished_run_config(folder: str | os.PathLike) -> dict[str, Any]:
     """The exp_config.json of a finished run (the only kind whose records make whole metrics)."""
     cfg = run_config(folder)
