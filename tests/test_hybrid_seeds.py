@@ -99,6 +99,50 @@ def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa
 
 
 @pytest.mark.slow
+def test_mapped_seeds_equal_vmapped_seeds(pair, confs, tmp_path):  # noqa: F811
+    """`seed_axis: map` (a big learner's default: lax.map runs the seeds one after another in the
+    program) trains each seed as the vmapped group does, at these shapes to the last bit, and the
+    run records which axis it used; `auto` keeps this small learner vmapped."""
+    mapped = _train(_with_conf(confs, tmp_path, seed_axis="map"), tmp_path, "mapped", FakeExecutor(),
+                    seeds=[0, 1])
+    for a, b in zip(pair["outs"], mapped, strict=True):
+        pd.testing.assert_frame_equal(read_records(a.folder), read_records(b.folder))
+        pd.testing.assert_frame_equal(_metrics(a.folder), _metrics(b.folder))
+        assert json.loads((a.folder / "exp_config.json").read_text())["seed_axis_used"] == "vmap"
+        assert json.loads((b.folder / "exp_config.json").read_text())["seed_axis_used"] == "map"
+
+
+def test_auto_maps_the_seeds_of_a_big_learner():
+    import jax
+    import jax.numpy as jnp
+
+    from urb_jax.experiment.hybrid.fns import MAP_SEEDS_PARAMS, maps_seeds
+
+    big = {"w": jax.ShapeDtypeStruct((MAP_SEEDS_PARAMS + 1,), jnp.float32)}
+    small = {"w": jnp.zeros((MAP_SEEDS_PARAMS,), jnp.float32)}
+    assert maps_seeds("auto", big) and not maps_seeds("auto", small)
+    assert maps_seeds("map", small) and not maps_seeds("vmap", big)
+
+
+@pytest.mark.slow
+def test_a_run_resumes_with_the_seed_axis_it_started_with(confs, tmp_path, monkeypatch):  # noqa: F811
+    """A run started before `seed_axis` existed vmapped its seeds: resumed, it still does, even
+    where `auto` would now map them (here every learner counts as big)."""
+    from urb_jax.experiment.hybrid import fns
+
+    killed = _train(confs, tmp_path, "old", FakeExecutor(), seeds=[0, 1], stop_after_round=1)
+    monkeypatch.setattr(fns, "MAP_SEEDS_PARAMS", 0)
+    for out in killed:  # as such a run's exp_config.json reads
+        config = json.loads((out.folder / "exp_config.json").read_text())
+        del config["hybrid_seed_axis"]
+        (out.folder / "exp_config.json").write_text(json.dumps(config))
+    resumed = resume_train("old_s0", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    fresh = _train(confs, tmp_path, "new", FakeExecutor(), seeds=[0, 1])
+    assert [json.loads((o.folder / "exp_config.json").read_text())["seed_axis_used"]
+            for o in resumed + fresh] == ["vmap", "vmap", "map", "map"]
+
+
+@pytest.mark.slow
 def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa: F811
     """A 2-seed run killed in the middle of round 2's SUMO batch, resumed by the second seed's id,
     ends with both seeds' records and metrics equal to the uninterrupted run. The reference run's

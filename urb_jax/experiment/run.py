@@ -351,6 +351,8 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
     seeds = [c["train_args"]["seed"] for c in configs]
     args = {**args, "networks_dir": networks_dir_of(configs[0], networks_dir)}
     setup = load_setup(args)
+    if "hybrid_seed_axis" not in configs[0]:  # started before the key: its seeds were vmapped
+        setup = setup._replace(hyb=dataclasses.replace(setup.hyb, seed_axis="vmap"))
     check_run_network(folder / CONFIG_FILE, configs[0], setup.scn.n_agents, setup.scn.net_file)
     with _stops_cleanly(folders), \
             _executor(executor, setup.hyb, folders[0], executor_kind or args.get("executor", "pool"),
@@ -486,7 +488,8 @@ def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H
     mark_done(folder, config, **names_of(config), **phases, wall_time_s=round(wall, 2), training_days=T,
               sumo_training_days=T,
               surrogate_training_days=summary.surrogate_days, rounds=summary.n_rounds,
-              alg_config_values=summary.alg_config, aon_same_humans=summary.aon_same_humans)
+              alg_config_values=summary.alg_config, aon_same_humans=summary.aon_same_humans,
+              seed_axis_used=summary.seed_axis)
     drop_journal(folder.parent, config)
     return RunResult(folder, metrics, wall, summary=summary)
 

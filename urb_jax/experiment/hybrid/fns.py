@@ -1,6 +1,10 @@
 """The hybrid trainer's jitted pieces, built once per seed group in one place.
 
-Every piece is vmapped over the leading seed axis [S]. This is also the trainer's one seam with
+Every piece runs over the leading seed axis [S]: vmapped, except that a big learner's pieces
+(`seed_map`) run the seeds one after another inside the program (`lax.map`). XLA:CPU runs the
+per-seed matrices of a vmapped big learner (URB's QMIX config1 from Provins' 209 CAVs up) as
+batched products about 2x slower per seed at 2 seeds and 2.9x at 5 than one seed alone, where
+`lax.map` stays linear (benchmarks/seed_axis.py). This is also the trainer's one seam with
 the env on real (SUMO) days: the real-day env, CAVs acting in departure order on it, and feeding it
 SUMO's measured travel times (`RoutingEnv.step_with_times`) all live here.
 """
@@ -14,6 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from urb_jax.algorithms.learner import Day, Learner, collect
+from urb_jax.experiment.hybrid.memory import tree_size
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.rollout import act_by_levels, dependency_levels
 from urb_jax.surrogate import Static, predict
@@ -27,10 +32,11 @@ ActFn = Callable[[Runner, jax.Array, EnvState], tuple[jnp.ndarray, jnp.ndarray, 
 
 
 class TrainerFns(NamedTuple):
-    """Jitted (except `split_p`) and vmapped over seeds. `sur_round`, `sur_round_adapt` and `update`
-    donate their runner (and population): XLA then writes the new learner state over the old, so a
-    round holds the state about once less at its peak (URB's QMIX config1: GBs a seed; measured in
-    hybrid/memory.py). The caller must not read what it passed."""
+    """Jitted (except `split_p`), over seeds (vmap, or the learner's pieces by `lax.map`).
+    `sur_round`, `sur_round_adapt` and `update` donate their runner (and population): XLA then
+    writes the new learner state over the old, so a round holds the state about once less at its
+    peak (URB's QMIX config1: GBs a seed; measured in hybrid/memory.py). The caller must not read
+    what it passed."""
 
     # surrogate iterations, one per key: (runner [S], keys [S, L, 2]) -> (runner, metrics [S, L])
     sur_round: Callable[[Runner, jax.Array], tuple[Runner, Metrics]]
@@ -50,17 +56,42 @@ class TrainerFns(NamedTuple):
     fresh_runner_real: Callable[[jax.Array], tuple[Runner, EnvState]]  # start keys [S, 2]
 
 
+# Above this many learner parameters `seed_axis: auto` maps the seeds. Measured (5 seeds x 16 envs
+# of URB's QMIX config1, benchmarks/seed_axis.py): 7.9 M (saint_arnoult, 88 CAVs) vmap 1.0x of one
+# seed alone, map 1.18x; 42.8 M (provins, 209 CAVs) vmap 2.0x at 2 seeds, map 1.0x. Between the two
+# it is unmeasured.
+MAP_SEEDS_PARAMS = 10_000_000
+
+
+def maps_seeds(seed_axis: str, params: Any) -> bool:
+    """Whether a learner with these parameters (one seed's, arrays or shapes) maps its seeds."""
+    return seed_axis == "map" or (seed_axis == "auto" and tree_size(params) > MAP_SEEDS_PARAMS)
+
+
+def seeds_vmap(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """fn over a leading seed axis of every argument, vectorised (`jax.vmap`)."""
+    return jax.vmap(fn)
+
+
+def seeds_map(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """fn over a leading seed axis of every argument, one seed after another (`lax.map`): each
+    seed runs fn's unbatched program, so the seeds of a group compute what each would alone."""
+    return lambda *args: jax.lax.map(lambda xs: fn(*xs), args)
+
+
 def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, static: Static, P: int,
-              n_iters_round: int, n_real: int | None = None) -> TrainerFns:
+              n_iters_round: int, n_real: int | None = None, seed_map: bool = False) -> TrainerFns:
     """The pieces for `learner` trained on the surrogate env `env`, P real days per round, played
     by `n_real` copies of the real humans (P: frozen humans, days side by side; 1: adapting humans,
-    one population living the days in order).
+    one population living the days in order). `seed_map`: the learner's pieces (surrogate rounds,
+    updates, acting, init) go over the seeds by `lax.map`, not vmap.
 
     A round's surrogate iterations take their keys as an argument (`iter_keys`), so the trainer can
     run a round as chunks of one compiled scan and time them from the host: no host callback in
     the program, which JAX's persistent compilation cache would refuse to store."""
     real_env = RoutingEnv(env.scenario, env.is_cav, human_init=env.human_init, **env_kwargs)  # SUMO days
     levels = dependency_levels(env)
+    over = seeds_map if seed_map else seeds_vmap  # the learner's pieces
     n_real = P if n_real is None else n_real
 
     def _sur_round(runner: Runner, keys: jax.Array) -> tuple[Runner, Metrics]:
@@ -113,15 +144,15 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
             _, real = jax.vmap(real_env.reset)(jax.random.split(k_real, P))
             return learner.init(k_init), jax.tree_util.tree_map(lambda x: x[:n_real], real)
 
-        return jax.vmap(one)(k_start)
+        return over(one)(k_start)
 
     return TrainerFns(
-        sur_round=jax.jit(jax.vmap(_sur_round), donate_argnums=0),
-        sur_round_adapt=jax.jit(jax.vmap(_sur_round_adapt), donate_argnums=(0, 1)),
+        sur_round=jax.jit(over(_sur_round), donate_argnums=0),
+        sur_round_adapt=jax.jit(over(_sur_round_adapt), donate_argnums=(0, 1)),
         iter_keys=jax.jit(jax.vmap(lambda k: jax.random.split(k, n_iters_round))),
-        update=jax.jit(jax.vmap(learner.update_from_days), donate_argnums=0),
-        act_explore=jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, True))),
-        act_greedy=jax.jit(jax.vmap(lambda r, k, s: _act(r, k, s, False))),
+        update=jax.jit(over(learner.update_from_days), donate_argnums=0),
+        act_explore=jax.jit(over(lambda r, k, s: _act(r, k, s, True))),
+        act_greedy=jax.jit(over(lambda r, k, s: _act(r, k, s, False))),
         sumo_step=jax.jit(jax.vmap(_sumo_step)),
         predict_days=jax.jit(jax.vmap(lambda params, choices: predict(params, static, choices))),
         split_p=jax.vmap(lambda k: jax.random.split(k, P)),

@@ -17,6 +17,7 @@ from urb_jax.core.errors import ConfigError
 from urb_jax.game.env import RoutingEnv
 
 MODES = ("hybrid", "sumo", "surrogate")
+SEED_AXES = ("auto", "vmap", "map")  # how a group's seeds share one program (hybrid/fns.py)
 # The config of any algorithm of urb_jax.algorithms.registry.ALGORITHMS.
 AlgoConfig = IQLConfig | PPOConfig | MixerConfig | IQLStarConfig | IPPOStarConfig
 
@@ -40,7 +41,10 @@ class HybridConfig:
     refit_days: int = 32
     refit_steps: int = 150
     day_timeout_s: float = 600.0
-    max_vmapped_seeds: int = 8  # seeds trained together under vmap; longer seed lists train in groups
+    max_vmapped_seeds: int = 8  # seeds trained together in one program; longer seed lists train in groups
+    # vmap, map (lax.map: one seed after another inside the program), or auto: map for a learner
+    # above fns.MAP_SEEDS_PARAMS parameters, where vmap is 2-3x slower a seed (hybrid/fns.py)
+    seed_axis: str = "auto"
     route_bias: bool = True  # correct the surrogate by SUMO's mean residual per (agent, route) driven
     route_bias_prior_days: float = 2.0  # shrinkage: residual x count / (count + prior days)
     reuse_identical_test_days: bool = True  # SUMO is deterministic: a repeated test day runs once
@@ -58,6 +62,9 @@ class HybridConfig:
         if self.surrogate_days_per_round + self.sumo_days_per_round < 1:
             raise ConfigError("keys 'surrogate_days_per_round' and 'sumo_days_per_round' are both 0: a round "
                               "would train on nothing. Fix: make one of them positive.")
+        if self.seed_axis not in SEED_AXES:
+            raise ConfigError(f"key 'seed_axis' is {self.seed_axis!r}. Fix: use one of "
+                              f"{', '.join(SEED_AXES)}.")
         if self.day_timeout_s <= 0 or self.route_bias_prior_days < 0:
             raise ConfigError("key 'day_timeout_s' must be > 0 and 'route_bias_prior_days' >= 0. "
                               "Fix: set them so.")

@@ -28,7 +28,7 @@ from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
 from urb_jax.experiment.human_phase import HumanPhase, calibrate, uncalibrated
 from urb_jax.experiment.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
-from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns
+from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns, maps_seeds
 from urb_jax.experiment.hybrid.memory import check_fits
 from urb_jax.experiment.hybrid.plan import (
     MODES,
@@ -95,6 +95,7 @@ class Group:
     clock: IterationClock  # times the surrogate iterations, chunk by chunk
     probe: Callable[[], float] | None  # a big learner's one-environment iteration, seconds (clock)
     memory_note: str  # the learner's memory against what is available (printed with the probe's estimate)
+    seed_map: bool  # the learner's pieces go over the seeds by lax.map, not vmap (fns.maps_seeds)
 
     @property
     def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
@@ -115,6 +116,7 @@ class TrainSummary:
     alg_config: dict[str, Any]
     seeds_together: int
     aon_same_humans: dict[str, float]
+    seed_axis: str  # how the group's seeds shared the program: "vmap" or "map"
 
 
 @dataclass(frozen=True)
@@ -152,13 +154,14 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
                              plan.iters)
         probe = functools.partial(probe_seconds, one, jax.random.PRNGKey(0))
     memory_note = check_fits(shapes, len(seeds), f"{alg} on {scn.name}")
-    fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real)
+    seed_map = maps_seeds(cfg.seed_axis, shapes.params)
+    fns = build_fns(env, env_kwargs, learner, static, cfg.sumo_days_per_round, plan.iters, n_real, seed_map)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.PRNGKey(s), 3))(jnp.asarray(seeds))
     return Group(scn, cfg, mode, list(seeds), env_seed, list(folders), len(seeds), cfg.sumo_days_per_round,
                  task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
                  np.flatnonzero(is_cav), static, p0,
                  plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock, probe,
-                 memory_note)
+                 memory_note, seed_map)
 
 
 def _slow_hint(alg: str, alg_config: AlgoConfig) -> str:
@@ -419,7 +422,8 @@ class HybridTrainer:
     def summaries(self, aon: dict[str, float]) -> list[TrainSummary]:
         g, plan = self.g, self.g.plan
         return [TrainSummary(log, g.H, plan.n_rounds * plan.sumo_days, plan.n_rounds,
-                             plan.n_rounds * plan.surrogate_days, dataclasses.asdict(g.alg_config), g.S, aon)
+                             plan.n_rounds * plan.surrogate_days, dataclasses.asdict(g.alg_config), g.S, aon,
+                             "map" if g.seed_map else "vmap")
                 for log in self.rounds_logs]
 
 
