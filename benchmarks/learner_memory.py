@@ -11,6 +11,7 @@ a hundred CAVs or more).
 
     python benchmarks/learner_memory.py --networks-dir ../shared/networks
     python benchmarks/learner_memory.py --net provins --task-conf config1 --seeds 0 --networks-dir DIR
+    python benchmarks/learner_memory.py --networks-dir DIR --set hybrid.seed_axis=vmap
 
 Columns:
   state GB       learner state of all seeds (params, target, optimizer moments, buffer, envs)
@@ -101,6 +102,8 @@ def main() -> None:
     parser.add_argument("--networks-dir", default=None)
     parser.add_argument("--human-days", type=int, default=20, help="human learning days (SUMO)")
     parser.add_argument("--out", default=None, help="results folder (default: a temporary one)")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="passed to urb-jax train (e.g. hybrid.seed_axis=vmap)")
     args = parser.parse_args()
     out = Path(args.out or tempfile.mkdtemp(prefix="learner_memory_"))
     out.mkdir(parents=True, exist_ok=True)
@@ -111,14 +114,16 @@ def main() -> None:
     base = [sys.executable, "-m", "urb_jax.commands.cli", "train", "--results-dir", str(out), "--no-progress"]
     run = ["--alg", args.alg, "--alg-conf", args.alg_conf, "--net", args.net, "--task-conf", args.task_conf,
            "--hybrid-conf", str(out / "hybrid.json"), "--seeds", args.seeds, "--id", "mem",
-           "--set", f"task.human_learning_episodes={args.human_days}", "--set", "task.test_eps=2"]
+           "--set", f"task.human_learning_episodes={args.human_days}", "--set", "task.test_eps=2",
+           *[x for item in args.set for x in ("--set", item)]]
     first_id = f"mem_s{args.seeds.split(',')[0]}" if "," in args.seeds else "mem"  # train_run_names
     first = out / first_id
     print(f"load average {os.getloadavg()[0]:.1f}; results in {out}")
     dirs = ["--networks-dir", args.networks_dir] if args.networks_dir else []
     fresh = watch(base + run + dirs, kill_when=first / "checkpoints" / "round_00001" / "meta.json")
     resumed = watch([*base, "--resume", first_id, *dirs], kill_when=None)
-    print(f"\n{args.alg} {args.alg_conf} on {args.net} ({args.task_conf}), seeds {args.seeds}; "
+    print(f"\n{args.alg} {args.alg_conf} on {args.net} ({args.task_conf}), seeds {args.seeds} "
+          f"{' '.join(args.set)}; "
           f"load average {os.getloadavg()[0]:.1f}")
     print("| part | state GB | RSS before GB | peak GB | (peak-before)/state | check GB |")
     print("|---|---|---|---|---|---|")
