@@ -47,7 +47,12 @@ def test_the_catalogue_states_the_papers_protocol():
         task, _ = load_task_config(r.kwargs["task_conf"])
         assert task.av_behavior == ("selfish" if r.kwargs["alg"] in ("iql", "ippo") else "cooperative")
         assert (task.ratio_machines, task.human_learning_episodes, task.test_eps) == (0.4, 200, 100)
-        assert r.kwargs["train_days"] == 6000 and r.kwargs["seeds"] == [0, 1, 2, 3, 4]
+        # but 3 seeds, one at a time, for Ingolstadt's QMIX config1 (about 5 h a seed here), as the
+        # issue allows where time forces it, and the entry's preamble says so
+        fewer = r.exp_id == "s1_ingolstadt_custom_qmix"
+        assert r.kwargs["train_days"] == 6000
+        assert r.kwargs["seeds"] == ([0, 1, 2] if fewer else [0, 1, 2, 3, 4])
+    assert "Ingolstadt's QMIX: 3" in load_suite(find_config("suites", "scenario1")).preamble
     for r in _trains("scenario2"):  # full autonomy
         assert load_task_config(r.kwargs["task_conf"])[0].ratio_machines == 1.0
         assert r.kwargs["net"] == "saint_arnoult"
@@ -94,5 +99,5 @@ def test_suite_list_names_every_shipped_suite(capsys):
     out = capsys.readouterr().out
     for name in [*CATALOGUE, "nine_networks"]:
         assert f"\n{name} " in f"\n{out}"
-    assert "15 train runs (75 seed folders), 6 baselines" in out  # scenario1: 3 networks x 5 algs x 5 seeds
+    assert "15 train runs (73 seed folders), 6 baselines" in out  # scenario1: 15 x 5 seeds, Ingolstadt QMIX 3
     assert main(["suite"]) == 2  # no suite named: the list, and exit 2
