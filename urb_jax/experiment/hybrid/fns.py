@@ -1,10 +1,11 @@
 """The hybrid trainer's jitted pieces, built once per seed group in one place.
 
 Every piece runs over the leading seed axis [S]: vmapped, except that a big learner's pieces
-(`seed_map`) run the seeds one after another inside the program (`lax.map`). XLA:CPU runs the
-per-seed matrices of a vmapped big learner (URB's QMIX config1 from Provins' 209 CAVs up) as
-batched products about 2x slower per seed at 2 seeds and 2.9x at 5 than one seed alone, where
-`lax.map` stays linear (benchmarks/seed_axis.py). This is also the trainer's one seam with
+(`seed_map`) run the seeds one after another inside the program (`lax.map`). On XLA:CPU a
+vmapped big learner (URB's QMIX config1 from Provins' 209 CAVs up) costs about 2x a seed at 2
+seeds and 2.9x at 5 against one seed alone, where `lax.map` stays linear (benchmarks/seed_axis.py;
+where XLA loses the time, presumably the batched products of per-seed weights, was not traced).
+This is also the trainer's one seam with
 the env on real (SUMO) days: the real-day env, CAVs acting in departure order on it, and feeding it
 SUMO's measured travel times (`RoutingEnv.step_with_times`) all live here.
 """
