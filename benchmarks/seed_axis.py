@@ -30,7 +30,7 @@ from standin import bpr_travel_time_fn
 
 from urb_jax.algorithms.registry import algorithm, load_algo_config
 from urb_jax.city.scenario import load_scenario
-from urb_jax.experiment.hybrid.fns import seeds_map, seeds_vmap
+from urb_jax.experiment.hybrid.fns import seeds_map
 from urb_jax.experiment.hybrid.memory import tree_size
 from urb_jax.game.env import RoutingEnv
 from urb_jax.game.mutation import draw_cavs
@@ -69,11 +69,11 @@ def main() -> None:
     params = tree_size(jax.eval_shape(learner.init, jax.random.PRNGKey(0)).params)
     print(f"{args.alg} {args.alg_conf} on {args.net}: {env.n_cavs} CAVs, {params / 1e6:.1f} M parameters, "
           f"{args.envs} envs, {jax.devices()[0].platform}, load average {os.getloadavg()[0]:.1f}")
-    alone = seconds(seeds_vmap, learner, 1) / args.envs
+    alone = seconds(jax.vmap, learner, 1) / args.envs
     print("| axis | seeds | s / iteration | per seed-env s | x alone |")
     print("|---|---|---|---|---|")
     print(f"| alone | 1 | {alone * args.envs:.2f} | {alone:.3f} | 1.00 |")
-    for name, over in (("vmap", seeds_vmap), ("map", seeds_map)):
+    for name, over in (("vmap", jax.vmap), ("map", seeds_map)):
         t = seconds(over, learner, args.seeds)
         per = t / (args.seeds * args.envs)
         print(f"| {name} | {args.seeds} | {t:.2f} | {per:.3f} | {per / alone:.2f} |", flush=True)

@@ -16,11 +16,17 @@ def embedded_networks_dir() -> Path:
     return Path(networks.__file__).resolve().parent
 
 
+def absolute_dir(folder: str | os.PathLike | None) -> str | None:
+    """A folder flag made absolute (None stays None): what the search path reads, and what a run
+    records so that a `--resume` from another working folder finds the same folder."""
+    return None if not folder else str(Path(folder).expanduser().resolve())
+
+
 def networks_search_path(networks_dir: str | os.PathLike | None = None) -> list[Path]:
     """Search order: explicit flag, then $URB_JAX_NETWORKS (os.pathsep-separated), then embedded."""
     path: list[Path] = []
     if networks_dir:
-        path.append(Path(networks_dir).expanduser().resolve())
+        path.append(Path(absolute_dir(networks_dir)))
     env = os.environ.get(NETWORKS_ENV, "")
     for part in env.split(os.pathsep):
         if part.strip():

@@ -31,6 +31,7 @@ from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.configio import in_section, to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop
+from urb_jax.core.paths import absolute_dir
 from urb_jax.core.progress import Progress
 from urb_jax.core.version import __version__
 from urb_jax.experiment.checkpoints import latest_checkpoint
@@ -248,9 +249,9 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
     args: TrainArgs = {
         "alg": canonical(alg), "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
         "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode,
-        "networks_dir": _absolute(networks_dir), "train_days": train_days, "executor": executor_kind,
-        "ray_address": ray_address,
-        "drop_unroutable": drop_unroutable, "overrides": list(overrides or []), "log": log}
+        "networks_dir": absolute_dir(networks_dir), "train_days": train_days, "executor": executor_kind,
+        "ray_address": ray_address, "drop_unroutable": drop_unroutable, "overrides": list(overrides or []),
+        "log": log}
     t0 = time.perf_counter()
     setup = load_setup(args)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=mode)
@@ -283,11 +284,6 @@ def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "con
         t_human = time.perf_counter() - t0
         return _train_groups(setup, args, configs, seeds, folders, ex, human, t_human, progress,
                              stop_after_round)
-
-
-def _absolute(folder: str | None) -> str | None:
-    """A --networks-dir made absolute, so that a `--resume` from another folder finds the network."""
-    return None if folder is None else str(Path(folder).expanduser().resolve())
 
 
 def _resolved(config: str) -> str:

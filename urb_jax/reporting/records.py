@@ -23,6 +23,7 @@ import pyarrow.parquet as pq
 
 from urb_jax.core.atomic import atomic_path, write_bytes
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.paths import absolute_dir
 from urb_jax.reporting.metrics import compute_metrics, vector_metrics
 from urb_jax.sumo_bridge.types import DayResult
 
@@ -167,7 +168,7 @@ def networks_dir_of(config: dict[str, Any], given: str | None = None) -> str | N
     else the folder holding the network file the run used (older runs recorded
     --networks-dir as typed, relative to the folder they were started from), else the recorded one."""
     if given:
-        return str(Path(given).expanduser().resolve())
+        return absolute_dir(given)
     net_file = Path(config.get("net_file") or "")
     if net_file.is_file() and net_file.parent.name == config.get("network"):
         return str(net_file.parent.parent)

@@ -69,11 +69,6 @@ def maps_seeds(seed_axis: str, params: Any) -> bool:
     return seed_axis == "map" or (seed_axis == "auto" and tree_size(params) > MAP_SEEDS_PARAMS)
 
 
-def seeds_vmap(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """fn over a leading seed axis of every argument, vectorised (`jax.vmap`)."""
-    return jax.vmap(fn)
-
-
 def seeds_map(fn: Callable[..., Any]) -> Callable[..., Any]:
     """fn over a leading seed axis of every argument, one seed after another (`lax.map`): each
     seed runs fn's unbatched program, so the seeds of a group compute what each would alone."""
@@ -92,7 +87,7 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
     the program, which JAX's persistent compilation cache would refuse to store."""
     real_env = RoutingEnv(env.scenario, env.is_cav, human_init=env.human_init, **env_kwargs)  # SUMO days
     levels = dependency_levels(env)
-    over = seeds_map if seed_map else seeds_vmap  # the learner's pieces
+    over = seeds_map if seed_map else jax.vmap  # the learner's pieces
     n_real = P if n_real is None else n_real
 
     def _sur_round(runner: Runner, keys: jax.Array) -> tuple[Runner, Metrics]:
