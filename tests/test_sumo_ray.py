@@ -239,13 +239,14 @@ def test_train_with_executor_ray_gives_the_pool_metrics(ray_local, tmp_path):
 
 def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypatch):
     import json
+    import types
 
     from urb_jax.experiment import run
 
     for exp in ("a", "b"):  # a killed run recorded with --executor ray --ray-address ...
         (tmp_path / exp).mkdir()
         (tmp_path / exp / "exp_config.json").write_text(json.dumps(
-            {"status": "running",
+            {"status": "running", "hybrid_seed_axis": "auto", "num_agents": 3,
              "train_args": {"executor": "ray", "ray_address": "ray://head:10001", "seed": 0}}))
         ckpt = tmp_path / exp / "checkpoints" / "round_00001"  # a complete checkpoint: resumable
         ckpt.mkdir(parents=True)
@@ -259,7 +260,8 @@ def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypat
         asked.append((kind, ray_address))
         raise StopError
 
-    monkeypatch.setattr(run, "load_setup", lambda args: run.TrainSetup(*(None,) * 8))
+    scn = types.SimpleNamespace(n_agents=3, net_file="net.xml")  # the run's own network, found again
+    monkeypatch.setattr(run, "load_setup", lambda args: run.TrainSetup(scn, *(None,) * 7))
     monkeypatch.setattr(run, "make_executor", fake_executor)
     with pytest.raises(StopError):
         run.resume_train("a", results_dir=str(tmp_path), progress=False)
