@@ -15,7 +15,7 @@ from fakeday import FakeDay
 from test_hybrid_loop import FakeExecutor
 
 from urb_jax.experiment.run import run_baseline
-from urb_jax.experiment.suite import SuiteRun, run_suite, status, write_report
+from urb_jax.experiment.suite import SuiteRun, run_progress, run_suite, status, write_report
 from urb_jax.reporting.records import read_records
 
 
@@ -40,10 +40,16 @@ def test_suite_resumes_skips_and_reports(tmp_path):
     killed = _runs(conf, FakeExecutor(), FakeDay(), stop_after_round=1)
     run_suite(killed[:1], results, progress=False, log=lambda _: None)
     assert [status(results, r) for r in killed] == ["stopped", "new"]
+    planned = len(pd.read_csv(ref[0] / "rounds.csv"))  # the finished run's rounds
+    [line] = run_progress(results, killed[0])  # the seeds were trained together: one group, one line
+    assert re.fullmatch(rf"seeds 0, 1: 1 of {planned} rounds done, checkpoint saved [-\d: ]+; its rounds "
+                        rf"took \d+ s each here, so the {planned - 1} left about \d+ s, then the test days",
+                        line)
     # ... then run again: the train run resumes from its checkpoint, the baseline starts
     lines: list[str] = []
     folders = run_suite(_runs(conf, FakeExecutor(), FakeDay()), results, progress=False, log=lines.append)
-    assert "resuming" in lines[0] and "starting" in lines[1]
+    assert "resuming" in lines[0] and "starting" in lines[2]
+    assert lines[1] == f"suite:   {line}"  # where the resumed run stood, from the same checkpoint
     assert [f.name for f in folders] == ["iqls_s0", "iqls_s1", "aon"]
     for a, b in zip(ref, folders, strict=True):  # the resumed suite ends exactly like the straight one
         pd.testing.assert_frame_equal(read_records(a), read_records(b))
@@ -149,3 +155,45 @@ def test_every_shipped_suite_loads():
     for path in files:
         spec = load_suite(path)
         assert spec.runs and len({r.exp_id for r in spec.runs}) == len(spec.runs)
+
+
+def _fake_run(folder: Path, group: list[str], meta: dict | None = None, human: bool = True) -> None:
+    folder.mkdir(parents=True)
+    (folder / "exp_config.json").write_text(json.dumps({"status": "running", "group": group}))
+    if human:
+        (folder / "human_phase.npz").write_bytes(b"")
+    if meta is not None:
+        ckpt = folder / "checkpoints" / f"round_{meta['rounds_done']:05d}"
+        ckpt.mkdir(parents=True)
+        (ckpt / "meta.json").write_text(json.dumps(meta))
+
+
+def test_progress_says_where_each_seed_group_stands(tmp_path):
+    """--status between sessions: a line per group of seeds trained together, from its checkpoint's
+    meta.json (rounds done of planned, the pace of its rounds so far), without reading arrays."""
+    run = SuiteRun("train", "r", {"seeds": [0, 1, 2, 3, 4]})
+    rows = [{"surrogate_s": 50.0, "sumo_s": 10.0}, {"surrogate_s": 70.0, "sumo_s": 10.0}]  # 70 s a round
+    _fake_run(tmp_path / "r_s0", ["r_s0", "r_s1"],
+              {"rounds_done": 2, "rounds_total": 5, "rounds": [rows, rows]})
+    _fake_run(tmp_path / "r_s1", ["r_s0", "r_s1"])
+    _fake_run(tmp_path / "r_s2", ["r_s2"])  # its group's turn has not come: the human phase is saved
+    _fake_run(tmp_path / "r_s3", ["r_s3"], human=False)
+    lines = run_progress(tmp_path, run)
+    assert lines[0].startswith("seeds 0, 1: 2 of 5 rounds done, checkpoint saved ")
+    assert lines[0].endswith("; its rounds took 70 s each here, so the 3 left about 3.5 min, then the "
+                             "test days")
+    assert lines[1:] == ["seed 2: no round checkpoint yet: its training starts from its saved human phase",
+                         "seed 3: no checkpoint yet: its human phase and calibration come first",
+                         "seed 4: not started"]
+    # a checkpoint from before meta.json recorded the plan; a group past its last round; a finished group
+    old = SuiteRun("train", "o", {"seeds": [0, 1, 2]})
+    _fake_run(tmp_path / "o_s0", ["o_s0"], {"rounds_done": 3, "rounds": [rows]})
+    _fake_run(tmp_path / "o_s1", ["o_s1"], {"rounds_done": 4, "rounds_total": 4, "rounds": [rows]})
+    (tmp_path / "o_s2").mkdir()
+    (tmp_path / "o_s2" / "exp_config.json").write_text(json.dumps({"status": "done", "group": ["o_s2"]}))
+    lines = run_progress(tmp_path, old)
+    assert lines[0].startswith("seed 0: 3 rounds done")
+    assert lines[0].endswith("(the checkpoint does not say of how many)")
+    assert lines[1].startswith("seed 1: 4 of 4 rounds done") and lines[1].endswith("; the test days are left")
+    assert lines[2] == "seed 2: done"
+    assert run_progress(tmp_path, SuiteRun("baseline", "aon")) == []

@@ -89,7 +89,7 @@ def _status(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from urb_jax.core.configio import find_config
-    from urb_jax.experiment.suite import STATES, load_suite, select, status
+    from urb_jax.experiment.suite import STATES, load_suite, run_progress, select, status
     from urb_jax.reporting.paper import load_paper_numbers
 
     results, recorded = Path(args.results_dir), _recorded(args)
@@ -107,6 +107,8 @@ def _status(args: argparse.Namespace) -> int:
     states = [status(results, r, mine) for r in spec.runs]
     for r, state in zip(spec.runs, states, strict=True):
         print(f"{r.exp_id:40s} {state:9s} {STATES[state]}")
+        for line in run_progress(results, r) if state in ("running", "stopped") else []:
+            print(f"{'':40s}   {line}")
     print(summary(states) + (f" (ledger {args.ledger})" if mine else ""))
     return 0
 

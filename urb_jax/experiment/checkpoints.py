@@ -57,6 +57,7 @@ class RoundMeta:
     folders: list[str]  # the seeds' results folders (names)
     record_parts: list[int]  # per seed: record parts written up to this checkpoint
     rounds: list[list[dict[str, Any]]]  # per seed: the rounds.csv rows so far
+    rounds_total: int | None = None  # the group's planned rounds (None: a checkpoint from before the key)
 
 
 def latest_checkpoint(folder: Path) -> tuple[int, Path] | None:
@@ -112,7 +113,17 @@ def restore_round(folder: Path, target: Any, seeds: Sequence[int]
     samples = [SumoSample(z[f"choices_{i}"], z[f"travel_time_{i}"], z[f"arrived_{i}"])
                for i in range(len(seeds))]
     return state, samples, RoundMeta(rounds_done, meta["sumo_days"], list(seeds), meta.get("folders", []),
-                                     meta["record_parts"], meta["rounds"])
+                                     meta["record_parts"], meta["rounds"], meta.get("rounds_total"))
+
+
+def checkpoint_meta(folder: Path) -> dict[str, Any] | None:
+    """The newest complete checkpoint's meta.json in `folder` (a group's first), with `saved_at`
+    (its mtime, epoch seconds); None without one. Reads no arrays: for reporting progress."""
+    found = latest_checkpoint(folder)
+    if found is None:
+        return None
+    meta_file = found[1] / "meta.json"
+    return {**json.loads(meta_file.read_text()), "saved_at": meta_file.stat().st_mtime}
 
 
 def _restore_state(path: Path, target: Any) -> Any:

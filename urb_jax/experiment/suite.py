@@ -26,8 +26,11 @@ import pandas as pd
 from urb_jax.core.atomic import write_bytes, write_text
 from urb_jax.core.configio import find_config
 from urb_jax.core.errors import ConfigError, UrbJaxError
+from urb_jax.experiment.checkpoints import checkpoint_meta
+from urb_jax.experiment.human_phase import HUMAN_FILE
+from urb_jax.experiment.hybrid.clock import fmt_duration
 from urb_jax.experiment.run import resume_train, run_baseline, run_train
-from urb_jax.experiment.run_folder import run_status, run_writer, train_run_names
+from urb_jax.experiment.run_folder import CONFIG_FILE, run_status, run_writer, train_run_names
 from urb_jax.reporting.leaderboard import collect_folders
 from urb_jax.reporting.paper import (
     EntryResults,
@@ -82,6 +85,53 @@ def status(results_dir: Path, run: SuiteRun, recorded: frozenset[str] | set[str]
     return "recorded" if set(run.folder_names()) <= set(recorded) else "new"
 
 
+def run_progress(results_dir: Path, run: SuiteRun) -> list[str]:
+    """Where an unfinished train run stands, a line per group of seeds trained together: its rounds
+    checkpointed of those planned, when the last was saved, and what the rounds left take at the
+    pace of its rounds so far. A run of several groups (`hybrid.max_vmapped_seeds`) can take many
+    sessions; this is what `--status` shows between them. Reads no arrays."""
+    if run.kind != "train":
+        return []
+    seeds = dict(zip(run.folder_names(), run.kwargs.get("seeds") or [0], strict=True))
+    lines, seen = [], set()
+    for name in seeds:
+        if name in seen:
+            continue
+        config_file = results_dir / name / CONFIG_FILE
+        config = json.loads(config_file.read_text()) if config_file.is_file() else {}
+        group = [g for g in config.get("group", [name]) if g in seeds] or [name]
+        seen.update(group)
+        label = "seed" + ("s " if len(group) > 1 else " ") + ", ".join(str(seeds[g]) for g in group)
+        lines.append(f"{label}: {_group_progress(results_dir, group, config)}")
+    return lines
+
+
+def _group_progress(results_dir: Path, group: list[str], config: dict[str, Any]) -> str:
+    """One group's line for `progress` (config: its first folder's exp_config.json, {} if none)."""
+    if not config:
+        return "not started"
+    if all(run_status(results_dir / name) == "done" for name in group):
+        return "done"
+    meta = checkpoint_meta(results_dir / group[0])
+    if meta is None:
+        return ("no round checkpoint yet: its training starts from its saved human phase"
+                if (results_dir / group[0] / HUMAN_FILE).is_file()
+                else "no checkpoint yet: its human phase and calibration come first")
+    done, total = meta["rounds_done"], meta.get("rounds_total")
+    saved = time.strftime("%Y-%m-%d %H:%M", time.localtime(meta["saved_at"]))
+    if total is None:  # a checkpoint written before meta.json recorded the plan
+        return f"{done} rounds done, checkpoint saved {saved} (the checkpoint does not say of how many)"
+    text = f"{done} of {total} rounds done, checkpoint saved {saved}"
+    rows = meta["rounds"][0] if meta["rounds"] else []
+    if done == total:
+        return text + "; the test days are left"
+    if rows:
+        per_round = sum(row["surrogate_s"] + row["sumo_s"] for row in rows) / len(rows)
+        text += (f"; its rounds took {fmt_duration(per_round)} each here, so the {total - done} left "
+                 f"about {fmt_duration(per_round * (total - done))}, then the test days")
+    return text
+
+
 def finished_runs(results_dir: Path) -> list[str]:
     """The finished run folders under results_dir, by name."""
     return sorted(p.parent.name for p in results_dir.glob("*/exp_config.json")
@@ -103,6 +153,9 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
             f"{time.perf_counter() - t0:.0f} s into the suite")
         if state == "recorded":
             continue
+        if state == "stopped":
+            for line in run_progress(results_dir, run):
+                log(f"suite:   {line}")
         if state == "running":
             writers = {run_writer(results_dir / name) for name in run.folder_names()} - {None}
             raise UrbJaxError(f"{results_dir / run.exp_id}: run '{run.exp_id}' is being written by "

@@ -247,7 +247,7 @@ class HybridTrainer:
     def checkpoint(self, rounds_done: int) -> None:
         g = self.g
         meta = RoundMeta(rounds_done, self.sumo_done, list(g.seeds), [f.name for f in g.folders],
-                         [w.n_parts for w in self.writers], self.rounds_logs)
+                         [w.n_parts for w in self.writers], self.rounds_logs, g.plan.n_rounds)
         save_round(g.folders[0], self.state._asdict(), self.samples, meta)
 
     def set_params(self) -> None:
