@@ -197,3 +197,22 @@ def test_progress_says_where_each_seed_group_stands(tmp_path):
     assert lines[1].startswith("seed 1: 4 of 4 rounds done") and lines[1].endswith("; the test days are left")
     assert lines[2] == "seed 2: done"
     assert run_progress(tmp_path, SuiteRun("baseline", "aon")) == []
+
+
+def test_progress_estimates_the_groups_not_started_and_the_run(tmp_path):
+    """Seeds one at a time (Ingolstadt's QMIX): a group not started is estimated at the pace of the
+    first group measured (a finished one's rounds.csv), and the run's time left is the sum."""
+    run = SuiteRun("train", "e", {"seeds": [0, 1, 2]})
+    (tmp_path / "e_s0").mkdir()
+    (tmp_path / "e_s0" / "exp_config.json").write_text(json.dumps({"status": "done", "group": ["e_s0"]}))
+    pd.DataFrame({"round": [1, 2, 3], "surrogate_s": [90.0, 95.0, 100.0], "sumo_s": [10.0, 5.0, 0.0]}
+                 ).to_csv(tmp_path / "e_s0" / "rounds.csv", index=False)  # 100 s a round, 3 rounds
+    _fake_run(tmp_path / "e_s1", ["e_s1"],
+              {"rounds_done": 1, "rounds_total": 3, "rounds": [[{"surrogate_s": 50.0, "sumo_s": 10.0}]]})
+    _fake_run(tmp_path / "e_s2", ["e_s2"])
+    lines = run_progress(tmp_path, run)
+    assert lines[0] == "seed 0: done"
+    assert lines[1].endswith("its rounds took 60 s each here, so the 2 left about 2.0 min, then the test days")
+    assert lines[2] == ("seed 2: no round checkpoint yet: its training starts from its saved human phase; at "
+                        "the pace of seed 0 its 3 rounds take about 5.0 min, then the test days")
+    assert lines[3] == "the run: about 7.0 min left, plus the test days"  # 0 + 120 s + 300 s
