@@ -212,7 +212,8 @@ def test_progress_estimates_the_groups_not_started_and_the_run(tmp_path):
     _fake_run(tmp_path / "e_s2", ["e_s2"])
     lines = run_progress(tmp_path, run)
     assert lines[0] == "seed 0: done"
-    assert lines[1].endswith("its rounds took 60 s each here, so the 2 left about 2.0 min, then the test days")
+    assert lines[1].endswith("its rounds took 60 s each here, so the 2 left about 2.0 min, then the test "
+                             "days")
     assert lines[2] == ("seed 2: no round checkpoint yet: its training starts from its saved human phase; at "
                         "the pace of seed 0 its 3 rounds take about 5.0 min, then the test days")
     assert lines[3] == "the run: about 7.0 min left, plus the test days"  # 0 + 120 s + 300 s

@@ -27,6 +27,7 @@ from urb_jax.reporting.records import remove_parts, write_plots, write_run_metri
 from urb_jax.reporting.urb_names import phase_keys
 
 CONFIG_FILE = "exp_config.json"
+ROUNDS_FILE = "rounds.csv"  # a hybrid run's per-round log (`write_rounds`)
 log = logging.getLogger(__name__)
 
 
@@ -195,7 +196,7 @@ def mark_done(folder: Path, config: dict[str, Any], **updates: Any) -> None:
 def write_rounds(folder: Path, rounds: list[dict[str, float]]) -> None:
     """rounds.csv (per round: surrogate and SUMO days, times, surrogate error) and its plot."""
     df = pd.DataFrame(rounds)
-    write_bytes(folder / "rounds.csv", df.to_csv(index=False).encode())
+    write_bytes(folder / ROUNDS_FILE, df.to_csv(index=False).encode())
     if "surrogate_mean_error" not in df:
         return
     import matplotlib  # imported by the runs that plot; the Agg backend is chosen before pyplot loads

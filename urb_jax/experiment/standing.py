@@ -1,0 +1,109 @@
+"""Where an unfinished train run stands, read from its folders without loading any array.
+
+A run whose seeds train in several groups (`hybrid.max_vmapped_seeds`: Ingolstadt's QMIX, a seed at
+a time) takes many sessions; `urb-jax suite ENTRY --status` and a resuming suite say, a line per
+group, how far each got (its newest checkpoint's meta.json, or its rounds.csv once finished) and,
+at the pace measured so far, how long the rest takes here.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import pandas as pd
+
+from urb_jax.experiment.checkpoints import checkpoint_meta
+from urb_jax.experiment.human_phase import HUMAN_FILE
+from urb_jax.experiment.hybrid.clock import fmt_duration
+from urb_jax.experiment.run_folder import CONFIG_FILE, ROUNDS_FILE, run_status
+
+
+def seed_groups(results_dir: Path, seeds: dict[str, int]) -> list[str]:
+    """A line per group of seeds trained together, of the train run whose folders (under
+    results_dir) and seeds are `seeds` (folder name -> seed): its rounds checkpointed of those
+    planned, when the last was saved, and what the rounds left take at the pace of its rounds so
+    far (a group not started: at the pace of the first group measured, where the groups are the
+    same size); then the run's total left where there are several groups."""
+    groups: list[tuple[str, list[str], dict[str, Any]]] = []  # (label, folder names, exp_config.json)
+    for name in seeds:
+        if any(name in g for _, g, _ in groups):
+            continue
+        config_file = results_dir / name / CONFIG_FILE
+        config = json.loads(config_file.read_text()) if config_file.is_file() else {}
+        group = [g for g in config.get("group", [name]) if g in seeds] or [name]
+        groups.append(("seed" + ("s " if len(group) > 1 else " ") + ", ".join(str(seeds[g]) for g in group),
+                       group, config))
+    paces = [p for label, group, _ in groups if (p := _pace(results_dir, label, group)) is not None]
+    lines, left = [], []
+    for label, group, config in groups:
+        text, seconds = _group_progress(results_dir, group, config, paces[0] if paces else None)
+        lines.append(f"{label}: {text}")
+        left.append(seconds)
+    if len(groups) > 1 and None not in left:
+        lines.append(f"the run: about {fmt_duration(sum(left))} left, plus the test days")
+    return lines
+
+
+class _Pace(NamedTuple):
+    """A group's measured rounds: whose, its seed count, seconds a round (surrogate leg and SUMO days),
+    rounds planned."""
+
+    label: str
+    n_seeds: int
+    per_round: float
+    rounds: int
+
+
+def _pace(results_dir: Path, label: str, group: list[str]) -> _Pace | None:
+    """A group's pace from its rounds so far: a finished group's rounds.csv, else its checkpoint's
+    rounds log (with the rounds planned, recorded since session 20); None where neither says."""
+    rounds_csv = results_dir / group[0] / ROUNDS_FILE
+    if run_status(results_dir / group[0]) == "done" and rounds_csv.is_file():
+        rows = pd.read_csv(rounds_csv).to_dict("records")
+        total = len(rows)
+    else:
+        meta = checkpoint_meta(results_dir / group[0])
+        if meta is None or meta.get("rounds_total") is None or not meta["rounds"]:
+            return None
+        rows, total = meta["rounds"][0], meta["rounds_total"]
+    return _Pace(label, len(group), _per_round(rows), total) if rows else None
+
+
+def _per_round(rows: list[dict[str, Any]]) -> float:
+    """Mean seconds a round (its surrogate leg and SUMO days) over rounds.csv rows."""
+    return sum(row["surrogate_s"] + row["sumo_s"] for row in rows) / len(rows)
+
+
+def _group_progress(results_dir: Path, group: list[str], config: dict[str, Any], pace: _Pace | None
+                    ) -> tuple[str, float | None]:
+    """One group's line for `seed_groups` (config: its first folder's exp_config.json, {} if none)
+    and the seconds its rounds left take (0 done, None unknown); `pace`: the run's first measured."""
+    if config and all(run_status(results_dir / name) == "done" for name in group):
+        return "done", 0.0
+    meta = checkpoint_meta(results_dir / group[0]) if config else None
+    if meta is None:
+        text = ("not started" if not config
+                else "no round checkpoint yet: its training starts from its saved human phase"
+                if (results_dir / group[0] / HUMAN_FILE).is_file()
+                else "no checkpoint yet: its human phase and calibration come first")
+        if pace is None or pace.n_seeds != len(group):
+            return text, None
+        seconds = pace.per_round * pace.rounds
+        return (f"{text}; at the pace of {pace.label} its {pace.rounds} rounds take about "
+                f"{fmt_duration(seconds)}, then the test days"), seconds
+    done, total = meta["rounds_done"], meta.get("rounds_total")
+    saved = time.strftime("%Y-%m-%d %H:%M", time.localtime(meta["saved_at"]))
+    if total is None:  # a checkpoint written before meta.json recorded the plan
+        return f"{done} rounds done, checkpoint saved {saved} (the checkpoint does not say of how many)", None
+    text = f"{done} of {total} rounds done, checkpoint saved {saved}"
+    rows = meta["rounds"][0] if meta["rounds"] else []
+    if done == total:
+        return text + "; the test days are left", 0.0
+    if not rows:
+        return text, None
+    seconds = _per_round(rows) * (total - done)
+    return (f"{text}; its rounds took {fmt_duration(_per_round(rows))} each here, so the {total - done} "
+            f"left about {fmt_duration(seconds)}, then the test days"), seconds
