@@ -217,3 +217,35 @@ def test_progress_estimates_the_groups_not_started_and_the_run(tmp_path):
     assert lines[2] == ("seed 2: no round checkpoint yet: its training starts from its saved human phase; at "
                         "the pace of seed 0 its 3 rounds take about 5.0 min, then the test days")
     assert lines[3] == "the run: about 7.0 min left, plus the test days"  # 0 + 120 s + 300 s
+
+
+@pytest.mark.slow
+def test_resume_finishes_every_seed_group_of_the_run(tmp_path):
+    """Seeds trained one group at a time (Ingolstadt's QMIX): a resume, by the suite or by any
+    seed's id, finishes every unfinished group, not only the named seed's. Session 20 found the
+    suite resuming seed 0's group alone, then reporting, with seeds 1 and 2 never trained."""
+    from urb_jax.experiment.run import _resume_group, resume_train
+
+    conf = tmp_path / "hyb.json"
+    conf.write_text(json.dumps({"train_days": 12, "num_envs": 2, "surrogate_days_per_round": 4,
+                                "sumo_days_per_round": 2, "sumo_workers": 1, "calib_human_days": 5,
+                                "calib_varied_days": 2, "calib_steps": 20, "refit_days": 4,
+                                "refit_steps": 5, "max_vmapped_seeds": 1}))
+    ref = run_suite(_runs(conf, FakeExecutor(), FakeDay())[:1], tmp_path / "ref", progress=False,
+                    log=lambda _: None)
+    for results in (tmp_path / "suite", tmp_path / "by_id"):  # both groups killed after round 1
+        run_suite(_runs(conf, FakeExecutor(), FakeDay(), stop_after_round=1)[:1], results, progress=False,
+                  log=lambda _: None)
+        # seed 0's group finished alone (the old resume): the run is still unfinished
+        _resume_group(["iqls_s0"], results_dir=str(results), progress=False, executor=FakeExecutor(),
+                      executor_kind=None, ray_address=None, overrides=None, log=None, networks_dir=None)
+        assert [json.loads((results / f"iqls_s{s}" / "exp_config.json").read_text())["status"]
+                for s in (0, 1)] == ["done", "running"]
+    run_suite(_runs(conf, FakeExecutor(), FakeDay())[:1], tmp_path / "suite", progress=False,
+              log=lambda _: None)
+    resume_train("iqls_s0", results_dir=str(tmp_path / "by_id"), progress=False, executor=FakeExecutor())
+    for results in (tmp_path / "suite", tmp_path / "by_id"):
+        for a in ref:  # every seed finished, with the uninterrupted run's records
+            pd.testing.assert_frame_equal(read_records(a), read_records(results / a.name))
+        with pytest.raises(Exception, match="already complete"):
+            resume_train("iqls_s1", results_dir=str(results), progress=False, executor=FakeExecutor())

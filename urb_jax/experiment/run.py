@@ -59,6 +59,7 @@ from urb_jax.experiment.run_folder import (
     create_results_dir,
     lock_run,
     mark_done,
+    run_status,
     source_commit,
     train_run_names,
     versions,
@@ -315,12 +316,13 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
                  executor: DayExecutor | None = None, executor_kind: str | None = None,
                  ray_address: str | None = None, overrides: list[str] | None = None,
                  log: str | None = None, networks_dir: str | None = None) -> list[RunResult]:
-    """Continue results/<exp_id>/ (and the seeds trained together with it) from the group's newest
-    checkpoint, with the recorded arguments (and the recorded SUMO executor unless `executor_kind`
-    overrides it); one result per seed of the group. The recorded `--set` overrides are
-    re-applied; `overrides` given here must be the same ones (`check_resume_overrides`). `log`:
-    the round logger (default: the recorded one). `networks_dir`: where the network is now (default:
-    the folder of the network file the run started with)."""
+    """Continue the train run results/<exp_id>/ belongs to: every unfinished group of its seeds
+    (`max_vmapped_seeds`), in seed order, each from its newest checkpoint, with the recorded
+    arguments (and the recorded SUMO executor unless `executor_kind` overrides it); one result per
+    seed resumed. The recorded `--set` overrides are re-applied; `overrides` given here must be the
+    same ones (`check_resume_overrides`). `log`: the round logger (default: the recorded one).
+    `networks_dir`: where the network is now (default: the folder of the network file the run
+    started with)."""
     enable_compile_cache()
     folder = Path(results_dir) / check_exp_id(exp_id)
     if not (folder / CONFIG_FILE).is_file():
@@ -330,15 +332,31 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
     if "train_args" not in config:
         raise UrbJaxError(f"{folder}: the run was stopped before its first SUMO day (or is not a train run): "
                           "there is nothing to resume. Fix: run the same command again with --overwrite.")
-    folders = [Path(results_dir) / name for name in config.get("group", [exp_id])]
+    groups: list[list[str]] = []  # the run's seed groups, in seed order (a run before run_folders: its own)
+    for name in config.get("run_folders", config.get("group", [exp_id])):
+        named = Path(results_dir) / name / CONFIG_FILE
+        if named.is_file() and not any(name in g for g in groups):
+            groups.append(json.loads(named.read_text()).get("group", [name]))
+    unfinished = [g for g in groups if any(run_status(Path(results_dir) / n) != "done" for n in g)]
+    if not unfinished:
+        for name in (n for g in groups for n in g):
+            remove_parts(Path(results_dir) / name)  # a kill after the last exp_config write left them
+        raise UrbJaxError(f"{folder}: this run is already complete.")
+    kwargs = dict(results_dir=results_dir, progress=progress, executor=executor, executor_kind=executor_kind,
+                  ray_address=ray_address, overrides=overrides, log=log, networks_dir=networks_dir)
+    return [r for group in unfinished for r in _resume_group(group, **kwargs)]
+
+
+def _resume_group(group: list[str], *, results_dir: str, progress: bool, executor: DayExecutor | None,
+                  executor_kind: str | None, ray_address: str | None, overrides: list[str] | None,
+                  log: str | None, networks_dir: str | None) -> list[RunResult]:
+    """One seed group of `resume_train`, from its newest checkpoint (none: from its human phase)."""
+    folder = Path(results_dir) / group[0]
+    folders = [Path(results_dir) / name for name in group]
     for f in folders:
         lock_run(f)
     log_run_to(folders[0])
     configs = [json.loads((f / CONFIG_FILE).read_text()) for f in folders]
-    if all(c.get("status") == "done" for c in configs):
-        for f in folders:
-            remove_parts(f)  # a kill after the last exp_config write left them
-        raise UrbJaxError(f"{folder}: this run is already complete.")
     args: TrainArgs = configs[0]["train_args"]
     check_resume_overrides(folder, args, overrides)
     if log is not None:
