@@ -210,13 +210,17 @@ def test_progress_estimates_the_groups_not_started_and_the_run(tmp_path):
     _fake_run(tmp_path / "e_s1", ["e_s1"],
               {"rounds_done": 1, "rounds_total": 3, "rounds": [[{"surrogate_s": 50.0, "sumo_s": 10.0}]]})
     _fake_run(tmp_path / "e_s2", ["e_s2"])
+    _fake_run(tmp_path / "e_s3", ["e_s3"], {"rounds_done": 0, "rounds_total": 3, "rounds": [[]]})
+    run = SuiteRun("train", "e", {"seeds": [0, 1, 2, 3]})
     lines = run_progress(tmp_path, run)
     assert lines[0] == "seed 0: done"
     assert lines[1].endswith("its rounds took 60 s each here, so the 2 left about 2.0 min, then the test "
                              "days")
     assert lines[2] == ("seed 2: no round checkpoint yet: its training starts from its saved human phase; at "
                         "the pace of seed 0 its 3 rounds take about 5.0 min, then the test days")
-    assert lines[3] == "the run: about 7.0 min left, plus the test days"  # 0 + 120 s + 300 s
+    assert lines[3].startswith("seed 3: 0 of 3 rounds done, checkpoint saved ")  # no round measured yet
+    assert lines[3].endswith("; at the pace of seed 0 the 3 left take about 5.0 min, then the test days")
+    assert lines[4] == "the run: about 12.0 min left, plus the test days"  # 0 + 120 s + 300 s + 300 s
 
 
 @pytest.mark.slow

@@ -102,8 +102,12 @@ def _group_progress(results_dir: Path, group: list[str], config: dict[str, Any],
     rows = meta["rounds"][0] if meta["rounds"] else []
     if done == total:
         return text + "; the test days are left", 0.0
-    if not rows:
-        return text, None
+    if not rows:  # no round measured yet: the pace of the run's first group measured, as one not started
+        if pace is None or pace.n_seeds != len(group):
+            return text, None
+        seconds = pace.per_round * (total - done)
+        return (f"{text}; at the pace of {pace.label} the {total - done} left take about "
+                f"{fmt_duration(seconds)}, then the test days"), seconds
     seconds = _per_round(rows) * (total - done)
     return (f"{text}; its rounds took {fmt_duration(_per_round(rows))} each here, so the {total - done} "
             f"left about {fmt_duration(seconds)}, then the test days"), seconds
