@@ -60,6 +60,7 @@ from urb_jax.experiment.run_folder import (
     lock_run,
     mark_done,
     run_status,
+    seed_groups_of,
     source_commit,
     train_run_names,
     versions,
@@ -332,11 +333,8 @@ def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = 
     if "train_args" not in config:
         raise UrbJaxError(f"{folder}: the run was stopped before its first SUMO day (or is not a train run): "
                           "there is nothing to resume. Fix: run the same command again with --overwrite.")
-    groups: list[list[str]] = []  # the run's seed groups, in seed order (a run before run_folders: its own)
-    for name in config.get("run_folders", config.get("group", [exp_id])):
-        named = Path(results_dir) / name / CONFIG_FILE
-        if named.is_file() and not any(name in g for g in groups):
-            groups.append(json.loads(named.read_text()).get("group", [name]))
+    # the run's seed groups, in seed order (a run from before run_folders: its own group)
+    groups = seed_groups_of(Path(results_dir), config.get("run_folders", config.get("group", [exp_id])))
     unfinished = [g for g in groups if any(run_status(Path(results_dir) / n) != "done" for n in g)]
     if not unfinished:
         for name in (n for g in groups for n in g):

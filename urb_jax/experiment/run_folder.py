@@ -185,6 +185,17 @@ def run_status(folder: Path) -> str | None:
     return json.loads(cfg.read_text()).get("status") if cfg.is_file() else None
 
 
+def seed_groups_of(results_dir: Path, names: list[str]) -> list[list[str]]:
+    """The groups of seeds trained together among run folders `names`, in their order: each
+    folder's exp_config.json `group` (a folder without one: a group of its own)."""
+    groups: list[list[str]] = []
+    for name in names:
+        if not any(name in g for g in groups):
+            config = results_dir / name / CONFIG_FILE
+            groups.append(json.loads(config.read_text()).get("group", [name]) if config.is_file() else [name])
+    return groups
+
+
 def mark_done(folder: Path, config: dict[str, Any], **updates: Any) -> None:
     """exp_config.json with status done and `updates` (without it, the run is unfinished), then the
     merged records' parts go: the finish is ordered so that a kill at any instant resumes."""

@@ -8,7 +8,6 @@ at the pace measured so far, how long the rest takes here.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -18,7 +17,7 @@ import pandas as pd
 from urb_jax.experiment.checkpoints import checkpoint_meta
 from urb_jax.experiment.human_phase import HUMAN_FILE
 from urb_jax.experiment.hybrid.clock import fmt_duration
-from urb_jax.experiment.run_folder import CONFIG_FILE, ROUNDS_FILE, run_status
+from urb_jax.experiment.run_folder import CONFIG_FILE, ROUNDS_FILE, run_status, seed_groups_of
 
 
 def seed_groups(results_dir: Path, seeds: dict[str, int]) -> list[str]:
@@ -27,19 +26,13 @@ def seed_groups(results_dir: Path, seeds: dict[str, int]) -> list[str]:
     planned, when the last was saved, and what the rounds left take at the pace of its rounds so
     far (a group not started: at the pace of the first group measured, where the groups are the
     same size); then the run's total left where there are several groups."""
-    groups: list[tuple[str, list[str], dict[str, Any]]] = []  # (label, folder names, exp_config.json)
-    for name in seeds:
-        if any(name in g for _, g, _ in groups):
-            continue
-        config_file = results_dir / name / CONFIG_FILE
-        config = json.loads(config_file.read_text()) if config_file.is_file() else {}
-        group = [g for g in config.get("group", [name]) if g in seeds] or [name]
-        groups.append(("seed" + ("s " if len(group) > 1 else " ") + ", ".join(str(seeds[g]) for g in group),
-                       group, config))
-    paces = [p for label, group, _ in groups if (p := _pace(results_dir, label, group)) is not None]
+    groups = [[g for g in group if g in seeds] or group  # the suite's seeds (an entry may list fewer now)
+              for group in seed_groups_of(results_dir, list(seeds))]
+    labels = ["seed" + ("s " if len(g) > 1 else " ") + ", ".join(str(seeds[n]) for n in g) for g in groups]
+    paces = [p for label, g in zip(labels, groups, strict=True) if (p := _pace(results_dir, label, g))]
     lines, left = [], []
-    for label, group, config in groups:
-        text, seconds = _group_progress(results_dir, group, config, paces[0] if paces else None)
+    for label, group in zip(labels, groups, strict=True):
+        text, seconds = _group_progress(results_dir, group, paces[0] if paces else None)
         lines.append(f"{label}: {text}")
         left.append(seconds)
     if len(groups) > 1 and None not in left:
@@ -77,37 +70,47 @@ def _per_round(rows: list[dict[str, Any]]) -> float:
     return sum(row["surrogate_s"] + row["sumo_s"] for row in rows) / len(rows)
 
 
-def _group_progress(results_dir: Path, group: list[str], config: dict[str, Any], pace: _Pace | None
-                    ) -> tuple[str, float | None]:
-    """One group's line for `seed_groups` (config: its first folder's exp_config.json, {} if none)
-    and the seconds its rounds left take (0 done, None unknown); `pace`: the run's first measured."""
-    if config and all(run_status(results_dir / name) == "done" for name in group):
+def _group_progress(results_dir: Path, group: list[str], pace: _Pace | None) -> tuple[str, float | None]:
+    """One group's line for `seed_groups` and the seconds its rounds left take (0 done, None
+    unknown): at its own pace, or before its first round at `pace` (the run's first measured)."""
+    first = results_dir / group[0]
+    started = (first / CONFIG_FILE).is_file()
+    if started and all(run_status(results_dir / name) == "done" for name in group):
         return "done", 0.0
-    meta = checkpoint_meta(results_dir / group[0]) if config else None
+    meta = checkpoint_meta(first) if started else None
     if meta is None:
-        text = ("not started" if not config
-                else "no round checkpoint yet: its training starts from its saved human phase"
-                if (results_dir / group[0] / HUMAN_FILE).is_file()
-                else "no checkpoint yet: its human phase and calibration come first")
-        if pace is None or pace.n_seeds != len(group):
-            return text, None
-        seconds = pace.per_round * pace.rounds
-        return (f"{text}; at the pace of {pace.label} its {pace.rounds} rounds take about "
-                f"{fmt_duration(seconds)}, then the test days"), seconds
+        return _at_pace(_before_training(first), None, group, pace)
     done, total = meta["rounds_done"], meta.get("rounds_total")
     saved = time.strftime("%Y-%m-%d %H:%M", time.localtime(meta["saved_at"]))
     if total is None:  # a checkpoint written before meta.json recorded the plan
         return f"{done} rounds done, checkpoint saved {saved} (the checkpoint does not say of how many)", None
     text = f"{done} of {total} rounds done, checkpoint saved {saved}"
-    rows = meta["rounds"][0] if meta["rounds"] else []
     if done == total:
         return text + "; the test days are left", 0.0
-    if not rows:  # no round measured yet: the pace of the run's first group measured, as one not started
-        if pace is None or pace.n_seeds != len(group):
-            return text, None
-        seconds = pace.per_round * (total - done)
-        return (f"{text}; at the pace of {pace.label} the {total - done} left take about "
-                f"{fmt_duration(seconds)}, then the test days"), seconds
+    rows = meta["rounds"][0] if meta["rounds"] else []
+    if not rows:
+        return _at_pace(text, total - done, group, pace)
     seconds = _per_round(rows) * (total - done)
     return (f"{text}; its rounds took {fmt_duration(_per_round(rows))} each here, so the {total - done} "
             f"left about {fmt_duration(seconds)}, then the test days"), seconds
+
+
+def _before_training(first: Path) -> str:
+    """A group without a round checkpoint, by its first folder."""
+    if not (first / CONFIG_FILE).is_file():
+        return "not started"
+    if (first / HUMAN_FILE).is_file():
+        return "no round checkpoint yet: its training starts from its saved human phase"
+    return "no checkpoint yet: its human phase and calibration come first"
+
+
+def _at_pace(text: str, left: int | None, group: list[str], pace: _Pace | None) -> tuple[str, float | None]:
+    """`text` with the time its `left` rounds (None: all of them) take at `pace`, where the paced
+    group has as many seeds; without such a pace, the time is unknown."""
+    if pace is None or pace.n_seeds != len(group):
+        return text, None
+    n = pace.rounds if left is None else left
+    seconds = pace.per_round * n
+    what = f"its {n} rounds take" if left is None else f"the {n} left take"
+    return (f"{text}; at the pace of {pace.label} {what} about {fmt_duration(seconds)}, then the test "
+            "days"), seconds
