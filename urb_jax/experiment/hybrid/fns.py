@@ -1,7 +1,7 @@
 """The hybrid trainer's jitted pieces, built once per seed group in one place.
 
 Every piece runs over the leading seed axis [S]: vmapped, except that a big learner's pieces
-(`seed_map`) run the seeds one after another inside the program (`lax.map`). On XLA:CPU a
+(`seed_map`, on a CPU) run the seeds one after another inside the program (`lax.map`). On XLA:CPU a
 vmapped big learner (URB's QMIX config1 from Provins' 209 CAVs up) costs about 2x a seed at 2
 seeds and 2.9x at 5 against one seed alone, where `lax.map` stays linear (benchmarks/seed_axis.py;
 where XLA loses the time, presumably the batched products of per-seed weights, was not traced).
@@ -57,16 +57,22 @@ class TrainerFns(NamedTuple):
     fresh_runner_real: Callable[[jax.Array], tuple[Runner, EnvState]]  # start keys [S, 2]
 
 
-# Above this many learner parameters `seed_axis: auto` maps the seeds. Measured (5 seeds x 16 envs
-# of URB's QMIX config1, benchmarks/seed_axis.py): 7.9 M (saint_arnoult, 88 CAVs) vmap 1.0x of one
-# seed alone, map 1.18x; 42.8 M (provins, 209 CAVs) vmap 2.0x at 2 seeds, map 1.0x. Between the two
-# it is unmeasured.
+# Above this many learner parameters `seed_axis: auto` maps the seeds on a CPU. Measured (5 seeds x
+# 16 envs of URB's QMIX config1, benchmarks/seed_axis.py): 7.9 M (saint_arnoult, 88 CAVs) vmap 1.0x
+# of one seed alone, map 1.18x; 42.8 M (provins, 209 CAVs) vmap 2.0x at 2 seeds, map 1.0x. Between
+# the two it is unmeasured. On one H100 vmap wins at any size measured: 48.2 M (5 seeds) vmap 0.80x,
+# map 1.04x; 166 M (ingolstadt_custom, 414 CAVs, 3 seeds) vmap 0.93x, map 1.01x (docs/results.md,
+# session 21), so `auto` maps on the CPU backend only.
 MAP_SEEDS_PARAMS = 10_000_000
 
 
-def maps_seeds(seed_axis: str, params: Any) -> bool:
-    """Whether a learner with these parameters (one seed's, arrays or shapes) maps its seeds."""
-    return seed_axis == "map" or (seed_axis == "auto" and tree_size(params) > MAP_SEEDS_PARAMS)
+def maps_seeds(seed_axis: str, params: Any, backend: str | None = None) -> bool:
+    """Whether a learner with these parameters (one seed's, arrays or shapes) maps its seeds on
+    `backend` (default: JAX's default backend, "cpu", "gpu" or "tpu")."""
+    if seed_axis != "auto":
+        return seed_axis == "map"
+    backend = jax.default_backend() if backend is None else backend
+    return backend == "cpu" and tree_size(params) > MAP_SEEDS_PARAMS
 
 
 def seeds_map(fn: Callable[..., Any]) -> Callable[..., Any]:
