@@ -10,7 +10,8 @@ The entry points a script needs (docs/api.md):
     (run,) = urb_jax.run_train(alg="iql", task_conf="test")        # URB's full protocol
     row = urb_jax.run_metrics(run.folder)                          # the BenchmarkMetrics row
 
-They load on first use (module `__getattr__`), so `import urb_jax` imports neither JAX nor SUMO.
+They load on first use (module `__getattr__`), so `import urb_jax` imports neither JAX nor SUMO;
+it does set XLA's deterministic-GPU flag in XLA_FLAGS (urb_jax.core.determinism).
 No room imports this module (`__version__` lives in urb_jax.core.version): the façade sits above
 every layer of the import contract.
 """
@@ -19,7 +20,10 @@ from __future__ import annotations
 
 import importlib
 
+from urb_jax.core import determinism as _determinism
 from urb_jax.core.version import __version__
+
+_determinism.deterministic_gpu()  # before JAX computes: the same seeds give the same bytes on a GPU
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (mypy and pyright know the name)
 
