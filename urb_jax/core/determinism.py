@@ -6,7 +6,8 @@ amplifies. Measured on one H100 (docs/results.md, session 21): URB's QMIX config
 seeds, gave seed 1 different records in two processes; with `--xla_gpu_deterministic_ops=true`
 two processes on two machines gave the same bytes. XLA reads XLA_FLAGS when it creates its
 backend, so the flag goes in before JAX's first computation: `import urb_jax` sets it (the
-package's __init__), which every entry point does first. A value the user gave wins; XLA:CPU,
+package's __init__), which every entry point does first; a script that computed with JAX before
+importing urb_jax must set XLA_FLAGS itself (docs/api.md). A value the user gave wins; XLA:CPU,
 deterministic already, ignores the flag.
 """
 
