@@ -22,33 +22,15 @@ import time
 from pathlib import Path
 
 import jax
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from fakeday import FakeDay
+import compile_cache_run
+from compile_cache_run import IQL
+from fakeday import FakeExecutor
 
 from urb_jax.experiment.run import resume_train, run_train
 
-HYBRID = {"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
-          "sumo_updates": 1, "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2,
-          "calib_steps": 20, "refit_days": 4, "refit_steps": 5}
-IQL = {"agent_frames_per_batch": 2, "n_iters": 10, "num_epochs": 1, "minibatch_size": 64,
-       "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400}
-
-
-class FakeExecutor:
-    """DayExecutor on FakeDay."""
-
-    def __init__(self) -> None:
-        self.day = FakeDay()
-
-    def run_days(self, scenario, choices, seeds, is_cav=None):
-        seeds = np.broadcast_to(seeds, (len(choices),))
-        return [self.day(scenario, c, seed=int(s), is_cav=is_cav)
-                for c, s in zip(choices, seeds, strict=True)]
-
-    def close(self) -> None:
-        pass
+HYBRID = {**compile_cache_run.HYBRID, "train_days": 18}  # 3 rounds
 
 
 def digest(folder: Path) -> str:

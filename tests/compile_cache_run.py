@@ -10,10 +10,9 @@ from collections import Counter
 from pathlib import Path
 
 import jax
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fakeday import FakeDay
+from fakeday import FakeExecutor
 
 from urb_jax.experiment.run import run_train
 
@@ -22,21 +21,6 @@ HYBRID = {"train_days": 12, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_
           "calib_steps": 20, "refit_days": 4, "refit_steps": 5}
 IQL = {"agent_frames_per_batch": 2, "n_iters": 10, "num_epochs": 1, "minibatch_size": 64,
        "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400}
-
-
-class FakeExecutor:
-    """DayExecutor on FakeDay."""
-
-    def __init__(self) -> None:
-        self.day = FakeDay()
-
-    def run_days(self, scenario, choices, seeds, is_cav=None):
-        seeds = np.broadcast_to(seeds, (len(choices),))
-        return [self.day(scenario, c, seed=int(s), is_cav=is_cav)
-                for c, s in zip(choices, seeds, strict=True)]
-
-    def close(self) -> None:
-        pass
 
 
 REQUESTS = "/jax/compilation_cache/compile_requests_use_cache"

@@ -1,5 +1,6 @@
 """A deterministic stand-in for a SUMO day: route time = FFT * (1 + load / 20) per (OD, route),
-SUMO duration 2 s shorter (as `sumo_bridge` records them)."""
+SUMO duration 2 s shorter (as `sumo_bridge` records them); and FakeExecutor, the DayExecutor that
+runs it (the tests', tests/compile_cache_run.py's and benchmarks/gpu_hybrid_check.py's)."""
 
 from __future__ import annotations
 
@@ -33,3 +34,23 @@ class FakeDay:
             stat_mean_route_length=float(length.mean()), stat_mean_duration=float(dur.mean()),
             teleports=0, n_removed=0, sim_end_time=0.0, wall_time=0.0,
         )
+
+
+class FakeExecutor:
+    """DayExecutor on FakeDay; remembers every batch and can fail on a chosen call (a kill)."""
+
+    def __init__(self, fail_on_call: int | None = None) -> None:
+        self.day = FakeDay()
+        self.batches: list[tuple[np.ndarray, np.ndarray | None]] = []
+        self.fail_on_call = fail_on_call
+
+    def run_days(self, scenario, choices, seeds, is_cav=None):
+        if self.fail_on_call is not None and len(self.batches) + 1 == self.fail_on_call:
+            raise KeyboardInterrupt("simulated kill during a SUMO batch")
+        choices = np.asarray(choices)
+        self.batches.append((choices.copy(), None if is_cav is None else np.asarray(is_cav).copy()))
+        return [self.day(scenario, c, seed=int(s), is_cav=is_cav)
+                for c, s in zip(choices, np.broadcast_to(seeds, (len(choices),)), strict=True)]
+
+    def close(self) -> None:
+        pass

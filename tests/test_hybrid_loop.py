@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fakeday import FakeDay
+from fakeday import FakeDay, FakeExecutor
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError
@@ -25,26 +25,6 @@ from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.reporting.records import read_records
 
 H, E = 10, 10  # configs/task/test.json
-
-
-class FakeExecutor:
-    """DayExecutor on FakeDay; remembers every batch and can fail on a chosen call (a kill)."""
-
-    def __init__(self, fail_on_call: int | None = None) -> None:
-        self.day = FakeDay()
-        self.batches: list[tuple[np.ndarray, np.ndarray | None]] = []
-        self.fail_on_call = fail_on_call
-
-    def run_days(self, scenario, choices, seeds, is_cav=None):
-        if self.fail_on_call is not None and len(self.batches) + 1 == self.fail_on_call:
-            raise KeyboardInterrupt("simulated kill during a SUMO batch")
-        choices = np.asarray(choices)
-        self.batches.append((choices.copy(), None if is_cav is None else np.asarray(is_cav).copy()))
-        return [self.day(scenario, c, seed=int(s), is_cav=is_cav)
-                for c, s in zip(choices, np.broadcast_to(seeds, (len(choices),)), strict=True)]
-
-    def close(self) -> None:
-        pass
 
 
 def tiny_iql_run(d: Path) -> dict[str, str]:
