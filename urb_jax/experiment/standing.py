@@ -29,7 +29,8 @@ def seed_groups(results_dir: Path, seeds: dict[str, int]) -> list[str]:
     groups = [[g for g in group if g in seeds] or group  # the suite's seeds (an entry may list fewer now)
               for group in seed_groups_of(results_dir, list(seeds))]
     labels = ["seed" + ("s " if len(g) > 1 else " ") + ", ".join(str(seeds[n]) for n in g) for g in groups]
-    paces = [p for label, g in zip(labels, groups, strict=True) if (p := _pace(results_dir, label, g))]
+    paces = [p for label, g in zip(labels, groups, strict=True)
+             if (p := _pace(results_dir, label, g)) is not None]
     lines, left = [], []
     for label, group in zip(labels, groups, strict=True):
         text, seconds = _group_progress(results_dir, group, paces[0] if paces else None)
