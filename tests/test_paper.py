@@ -15,7 +15,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_catalogue import CATALOGUE, SUITES
 
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.suite import load_suite
+from urb_jax.experiment.suite import SuiteRun, folders_left, load_suite, remaining
+from urb_jax.experiment.suite import status as status_of
 from urb_jax.reporting.leaderboard import collect_folders
 from urb_jax.reporting.paper import COLUMNS, EntryResults, load_paper_numbers, paper_file, paper_markdown
 from urb_jax.reporting.urb_names import baseline_names, train_names
@@ -314,3 +315,53 @@ def test_a_generation_that_would_drop_finished_runs_is_refused(tmp_path, capsys,
     assert page.read_text() == committed and not (page.parent / "paper_runs.json").exists()
     assert main([*args, "--allow-fewer"]) == 0
     assert "| `sensitivity_demand_half` | not found | not run yet |" in page.read_text()
+
+
+def test_the_finished_seeds_of_an_unfinished_run_outlive_their_machine(tmp_path, monkeypatch, capsys):
+    """A run's seeds can take longer than a machine lives (Ingolstadt's QMIX: 2.5 h a seed): each seed
+    finished goes to the ledger at once, though its run is not shown until all its seeds are; the
+    next machine runs only the seeds the ledger lacks, and the page then shows the run whole."""
+    import urb_jax.experiment.suite as suite
+    from urb_jax.commands.cli import main
+
+    monkeypatch.setattr(suite, "write_report", _fake_report)
+    ippo = train_names("ippo", "hybrid", "default", 6000, "config1")
+    first, second, docs = tmp_path / "machine1", tmp_path / "machine2", tmp_path / "docs"
+    for seed in (0, 1):  # machine 1 ends after 2 of the run's 5 seeds
+        _run(first, f"s1_saint_arnoult_ippo_s{seed}", ippo, "saint_arnoult", "config1", t_pre=3.19,
+             t_CAV=3.2, t_pre_duration=3.16, t_CAV_duration=3.30 + 0.01 * seed, winrate=0.0)
+    (first / "s1_saint_arnoult_ippo_s2").mkdir()  # a seed stopped there: lost with the machine
+    out = docs / "paper.md"
+    assert main(["suite", "--paper", "--results-dir", str(first), "--out", str(out)]) == 0
+    page1 = out.read_text()
+    assert "| `scenario1` | found | not run yet |" in page1  # the run is not shown with 2 seeds ...
+    assert "(kept in the ledger, shown once their run is): `s1_saint_arnoult_ippo_s0`, " \
+           "`s1_saint_arnoult_ippo_s1`." in page1  # ... but its finished seeds are kept
+    ledger = json.loads((docs / "paper_runs.json").read_text())["runs"]
+    assert sorted(r["exp_id"] for r in ledger) == ["s1_saint_arnoult_ippo_s0", "s1_saint_arnoult_ippo_s1"]
+
+    # machine 2: the suite would run seeds 2-4 only
+    args = ["suite", "scenario1", "--only", "s1_saint_arnoult_ippo", "--results-dir", str(second),
+            "--ledger", str(docs / "paper_runs.json")]
+    capsys.readouterr()
+    assert main([*args, "--status"]) == 0
+    status = capsys.readouterr().out
+    assert re.search(r"s1_saint_arnoult_ippo +new", status)
+    assert "seed(s) 0, 1: finished elsewhere (the ledger)" in status
+    planned = [SuiteRun("train", "s1_saint_arnoult_ippo", {"alg": "ippo", "seeds": [0, 1, 2, 3, 4]})][0]
+    recorded = {"s1_saint_arnoult_ippo_s0", "s1_saint_arnoult_ippo_s1"}
+    left = folders_left(second, planned, recorded)
+    assert left == [f"s1_saint_arnoult_ippo_s{s}" for s in (2, 3, 4)]
+    assert remaining(planned, left).kwargs["seeds"] == [2, 3, 4]
+    for seed in (2, 3, 4):  # ... and it finishes them
+        _run(second, f"s1_saint_arnoult_ippo_s{seed}", ippo, "saint_arnoult", "config1", t_pre=3.19,
+             t_CAV=3.2, t_pre_duration=3.16, t_CAV_duration=3.30 + 0.01 * seed, winrate=0.0)
+    assert status_of(second, planned, recorded) == "recorded"
+    assert main(["suite", "--paper", "--results-dir", str(second), "--out", str(out)]) == 0
+    page2 = out.read_text()
+    assert "| `scenario1` | found | 1 of 21 runs finished |" in page2
+    assert "kept in the ledger, shown once" not in page2
+    [duration] = [line for line in page2.splitlines() if line.startswith("|  | ours, SUMO duration |")
+                  and "| 5 |" in line]
+    assert "3.3200 ± 0.0141" in duration  # all five seeds (3.30 ... 3.34): mean, population std
+    assert len(json.loads((docs / "paper_runs.json").read_text())["runs"]) == 5

@@ -127,6 +127,33 @@ def test_a_suite_simulates_each_human_phase_once(tmp_path):
     assert later["human_phase_from"] == "first" and all(cav is not None for _, cav in ex4.batches)
 
 
+@pytest.mark.slow
+def test_a_suite_runs_only_the_seeds_the_ledger_lacks_to_the_same_bytes(tmp_path):
+    """Seeds finished on another machine (`recorded`: the paper page's ledger) are not run again: the
+    suite trains the others, into the folders the whole run would have written, and a seed trained
+    one at a time gets the same records whether its run's other seeds ran beside it or elsewhere."""
+    conf = tmp_path / "hyb.json"
+    conf.write_text(json.dumps({"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4,
+                                "sumo_days_per_round": 2, "sumo_workers": 1, "calib_human_days": 5,
+                                "calib_varied_days": 2, "calib_steps": 20, "refit_days": 4,
+                                "refit_steps": 5, "max_vmapped_seeds": 1}))
+    def run(seeds: list[int]) -> SuiteRun:
+        return SuiteRun("train", "iqls", {"alg": "iql_star", "task_conf": "test", "hybrid_conf": str(conf),
+                                          "seeds": seeds, "executor": FakeExecutor()})
+
+    ref = run_suite([run([1, 2])], tmp_path / "ref", progress=False, log=lambda _: None)
+    results, lines = tmp_path / "results", []
+    assert status(results, run([1, 2]), {"iqls_s1"}) == "new"
+    folders = run_suite([run([1, 2])], results, progress=False, log=lines.append, recorded={"iqls_s1"})
+    assert lines[1] == "suite:   iqls_s1 finished (here or in the ledger); running iqls_s2"
+    assert [f.name for f in folders] == ["iqls_s2"] and not (results / "iqls_s1").exists()
+    pd.testing.assert_frame_equal(read_records(ref[1]), read_records(folders[0]))
+    assert (ref[1] / "metrics" / "BenchmarkMetrics.csv").read_bytes() == \
+        (folders[0] / "metrics" / "BenchmarkMetrics.csv").read_bytes()
+    assert status(results, run([1, 2]), {"iqls_s1"}) == "recorded"  # nothing left: skipped from now on
+    assert status(results, run([1, 2])) == "new"  # without the ledger, seed 1 is not here
+
+
 @pytest.mark.parametrize("runs, message", [
     ([{"kind": "train", "id": "a", "args": {"alg": "iql", "lr": 0.1}}],
      "args \\['lr'\\] are not train arguments"),

@@ -107,7 +107,8 @@ def _status(args: argparse.Namespace) -> int:
     states = [status(results, r, mine) for r in spec.runs]
     for r, state in zip(spec.runs, states, strict=True):
         print(f"{r.exp_id:40s} {state:9s} {STATES[state]}")
-        for line in run_progress(results, r) if state in ("running", "stopped") else []:
+        partly = state == "new" and set(r.folder_names()) & mine  # some seeds finished elsewhere
+        for line in run_progress(results, r, mine) if state in ("running", "stopped") or partly else []:
             print(f"{'':40s}   {line}")
     print(summary(states) + (f" (ledger {args.ledger})" if mine else ""))
     return 0

@@ -69,27 +69,53 @@ STATES = {"done": "finished before, skipped",
           "stopped": "resuming", "new": "starting"}
 
 
+def folders_left(results_dir: Path, run: SuiteRun, recorded: frozenset[str] | set[str] = frozenset()
+                 ) -> list[str]:
+    """The run's folders neither finished here nor in `recorded` (the paper page's ledger, finished on
+    another machine): what running it still has to do. A seed finished anywhere is never run again."""
+    return [n for n in run.folder_names() if n not in recorded and run_status(results_dir / n) != "done"]
+
+
 def status(results_dir: Path, run: SuiteRun, recorded: frozenset[str] | set[str] = frozenset()) -> str:
-    """'done' (every folder finished here), 'running' (a live process is writing one of them),
-    'stopped' (a folder exists here, not finished, nobody writing it), 'recorded' (no folder here,
-    every folder's run in `recorded`: the paper page's ledger, finished on another machine) or 'new'."""
-    states = [run_status(results_dir / name) for name in run.folder_names()]
-    if all(s == "done" for s in states):
-        return "done"
-    if any(run_writer(results_dir / name) is not None for name in run.folder_names()):
+    """'done' (every folder finished here), 'recorded' (every folder finished here or in `recorded`:
+    the paper page's ledger, finished on another machine), 'running' (a live process is writing one
+    of the run's folders), 'stopped' (a folder left to do exists here, not finished, nobody writing
+    it) or 'new' (nothing left to do here yet: all of the run, or the seeds the ledger lacks)."""
+    names, left = run.folder_names(), folders_left(results_dir, run, recorded)
+    if not left:
+        return "done" if all(run_status(results_dir / n) == "done" for n in names) else "recorded"
+    if any(run_writer(results_dir / name) is not None for name in names):
         return "running"
-    if any(s is not None for s in states):
+    if any(run_status(results_dir / n) is not None for n in left):
         return "stopped"
-    return "recorded" if set(run.folder_names()) <= set(recorded) else "new"
+    return "new"
 
 
-def run_progress(results_dir: Path, run: SuiteRun) -> list[str]:
-    """Where an unfinished train run stands, a line per group of seeds (`standing.seed_groups`);
-    nothing for a baseline. What `--status` shows between the sessions of a long run."""
+def remaining(run: SuiteRun, left: list[str]) -> SuiteRun:
+    """The part of a train run still to do: its seeds whose folders are `left` (a sub-list of
+    run.folder_names()), named so that they write those folders (one seed left: the folder's own
+    name, as train_run_names names a one-seed run). A seed's bytes do not depend on the seeds
+    trained beside it where they are trained one at a time (`max_vmapped_seeds: 1`, docs/hybrid.md)."""
+    if left == run.folder_names() or run.kind != "train":
+        return run
+    seeds = [s for s, n in zip(run.kwargs.get("seeds") or [0], run.folder_names(), strict=True) if n in left]
+    part = SuiteRun(run.kind, left[0] if len(left) == 1 else run.exp_id, {**run.kwargs, "seeds": seeds})
+    assert part.folder_names() == left, (part.folder_names(), left)
+    return part
+
+
+def run_progress(results_dir: Path, run: SuiteRun, recorded: frozenset[str] | set[str] = frozenset()
+                 ) -> list[str]:
+    """Where an unfinished train run stands, a line per group of seeds (`standing.seed_groups`) that
+    is left to do, and a line naming its seeds the ledger (`recorded`) holds; nothing for a
+    baseline. What `--status` shows between the sessions of a long run."""
     if run.kind != "train":
         return []
-    seeds = run.kwargs.get("seeds") or [0]
-    return seed_groups(results_dir, dict(zip(run.folder_names(), seeds, strict=True)))
+    seeds = dict(zip(run.folder_names(), run.kwargs.get("seeds") or [0], strict=True))
+    elsewhere = [n for n in seeds if n in recorded and run_status(results_dir / n) != "done"]
+    lines = seed_groups(results_dir, {n: s for n, s in seeds.items() if n not in elsewhere})
+    done = ", ".join(str(seeds[n]) for n in elsewhere)
+    return lines + ([f"seed(s) {done}: finished elsewhere (the ledger)"] if elsewhere else [])
 
 
 def finished_runs(results_dir: Path) -> list[str]:
@@ -111,10 +137,11 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
         state = status(results_dir, run, recorded)
         log(f"suite: run {i}/{len(runs)} {run.exp_id} ({run.kind}): {STATES[state]}, "
             f"{time.perf_counter() - t0:.0f} s into the suite")
-        if state == "recorded":
+        if state == "recorded":  # its seeds finished here, if any, still make the report
+            folders += [results_dir / n for n in run.folder_names() if run_status(results_dir / n) == "done"]
             continue
         if state == "stopped":
-            for line in run_progress(results_dir, run):
+            for line in run_progress(results_dir, run, recorded):
                 log(f"suite:   {line}")
         if state == "running":
             writers = {run_writer(results_dir / name) for name in run.folder_names()} - {None}
@@ -128,15 +155,21 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
         earlier = [f.name for f in folders]
         candidates = earlier + [name for name in before if name not in earlier]
         shared = {} if "human_phase_from" in run.kwargs else {"human_phase_candidates": candidates}
+        left = folders_left(results_dir, run, recorded)
+        if 0 < len(left) < len(run.folder_names()):
+            finished = [n for n in run.folder_names() if n not in left]
+            log(f"suite:   {', '.join(finished)} finished (here or in the ledger); running {', '.join(left)}")
         if state == "stopped" and run.kind == "train":
-            resume_train(run.folder_names()[0], results_dir=str(results_dir), progress=progress,
+            first = next(n for n in left if run_status(results_dir / n) is not None)
+            resume_train(first, results_dir=str(results_dir), progress=progress,
                          executor=run.kwargs.get("executor"), networks_dir=run.kwargs.get("networks_dir"))
         elif state != "done":  # a stopped baseline has no checkpoint: it starts again in its own folder
+            part = remaining(run, left)
             start = run_train if run.kind == "train" else run_baseline
             again = {"overwrite": True} if state == "stopped" else {}
-            start(exp_id=run.exp_id, results_dir=str(results_dir), progress=progress, **again, **shared,
-                  **run.kwargs)
-        folders += [results_dir / name for name in run.folder_names()]
+            start(exp_id=part.exp_id, results_dir=str(results_dir), progress=progress, **again, **shared,
+                  **part.kwargs)
+        folders += [results_dir / n for n in run.folder_names() if run_status(results_dir / n) == "done"]
     return folders
 
 
@@ -199,7 +232,7 @@ def paper_report(results_dir: str | Path, out: str | Path, allow_fewer: bool = F
         f"| `{r.entry}` | {paper['entries'][r.entry]['status']} | "
         f"{f'{r.runs_done} of {r.runs_planned} runs finished' if r.runs_done else 'not run yet'} |"
         for r in results)
-    rows = [r.runs.assign(entry=r.entry) for r in results if not r.runs.empty]
+    rows = [t.assign(entry=r.entry) for r in results for t in (r.runs, r.partial) if not t.empty]
     write_text(ledger_file, ledger_json(pd.concat(rows, ignore_index=True) if rows else ledger.iloc[:0]))
     header = PAPER_HEADER.format(results=results_dir, ledger=os.path.relpath(ledger_file, out.parent),
                                  summary=summary)
@@ -227,16 +260,16 @@ def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.
     runs. Figures of the runs here are copied to figures_dir/<entry>/ (next to the page, so the
     page's links hold wherever the results folder is); every figure there is linked."""
     spec = load_suite(find_config("suites", entry))
-    folders = [results_dir / name for r in spec.runs if status(results_dir, r) == "done"
-               for name in r.folder_names()]
-    here = collect_folders(folders).drop(columns=["folder"], errors="ignore")
-    planned = {name for r in spec.runs for name in r.folder_names()}
-    ran_here = set(here["exp_id"]) if not here.empty else set()
-    before = ledger[(ledger["entry"] == entry) & ledger["exp_id"].isin(planned - ran_here)]
+    planned = list(dict.fromkeys(name for r in spec.runs for name in r.folder_names()))
+    finished_here = [n for n in planned if run_status(results_dir / n) == "done"]  # unfinished runs' too
+    here = collect_folders([results_dir / n for n in finished_here]).drop(columns=["folder"], errors="ignore")
+    before = ledger[(ledger["entry"] == entry) & ledger["exp_id"].isin(set(planned) - set(finished_here))]
     parts = [t for t in (here, before.drop(columns=["entry"])) if not t.empty]
-    runs = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
-    finished = set(runs["exp_id"]) if not runs.empty else set()
-    done = [r for r in spec.runs if set(r.folder_names()) <= finished]
+    rows = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=["exp_id"])
+    done = [r for r in spec.runs if set(r.folder_names()) <= set(rows["exp_id"])]
+    shown = rows["exp_id"].isin({n for r in done for n in r.folder_names()})
+    runs, partial = rows[shown].reset_index(drop=True), rows[~shown].reset_index(drop=True)
+    folders = [results_dir / n for n in finished_here if n in set(runs["exp_id"])]
     if folders:
         report = write_report(spec.title, folders, results_dir / f"suite_{entry}", spec.preamble)
         for png in sorted((report.parent / "figures").glob("*.png")):
@@ -245,7 +278,7 @@ def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.
     seeds = [len(r.kwargs.get("seeds") or [0]) for r in spec.runs if r.kind == "train"]
     missing = [r.exp_id for r in spec.runs if r not in done]
     return EntryResults(entry, spec.title, runs, len(spec.runs), len(done), max(seeds, default=1), figures,
-                        missing)
+                        missing, partial)
 
 
 # Keyword arguments a suite file may give each kind (the commands' own flags, as Python names).

@@ -208,6 +208,9 @@ class EntryResults:
     seeds_planned: int
     figures: list[str] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)  # run ids not finished yet
+    # the finished seeds of runs not finished yet: kept in the ledger (a machine's end loses nothing),
+    # not in the tables (a run is shown with all its seeds)
+    partial: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
 def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
@@ -221,6 +224,9 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
     if res.missing and res.runs_done:
         out += [f"Not finished yet: {', '.join(f'`{m}`' for m in res.missing)} "
                 f"(`urb-jax suite {res.entry} --status`; `urb-jax suite {res.entry}` runs them).", ""]
+    if not res.partial.empty:
+        out += [f"Seeds finished of runs not finished yet (kept in the ledger, shown once their run is): "
+                f"{', '.join(f'`{n}`' for n in sorted(res.partial['exp_id']))}.", ""]
     runs = res.runs
     if paper.get("status") != "found":
         out += [f"**The paper's numbers: not found.** {paper.get('notes', '')}", ""]
