@@ -16,7 +16,6 @@ Resumable: finished trials are kept in DIR/trials.json and skipped when run agai
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import shutil
@@ -28,10 +27,18 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from digests import result_digests
+
 HYBRID = {"train_days": 120, "num_envs": 4, "surrogate_days_per_round": 32, "sumo_days_per_round": 4,
           "sumo_updates": 1, "sumo_workers": 2, "calib_human_days": 5, "calib_varied_days": 2,
           "calib_steps": 50, "refit_days": 8, "refit_steps": 20}
-FILES = ("records.parquet", "metrics/BenchmarkMetrics.csv")
+
+
+def _digest(folder: Path) -> list[str] | None:
+    """The run's result digests as a list: the form trials.json gives back when it resumes."""
+    digests = result_digests(folder)
+    return None if digests is None else list(digests)
 
 
 def _cmd(out: Path, *args: str) -> list[str]:
@@ -46,10 +53,6 @@ def _start(out: Path, exp_id: str, *extra: str) -> subprocess.Popen:
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
-def _digest(folder: Path) -> list[str] | None:
-    if not all((folder / f).is_file() for f in FILES):
-        return None
-    return [hashlib.sha256((folder / f).read_bytes()).hexdigest() for f in FILES]
 
 
 def _phase(folder: Path, rounds: int) -> str:

@@ -4,7 +4,6 @@ and the persistent compilation cache (entries when on, none when off, identical 
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import json
 import os
@@ -18,6 +17,8 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from digests import result_digests
 from standin import make_env
 
 from urb_jax.algorithms.registry import algorithm, load_algo_config
@@ -207,9 +208,9 @@ def test_warm_compile_cache_gives_identical_records(tmp_path):
     for run in ("cold", "warm"):
         out = tmp_path / run
         subprocess.run([sys.executable, str(script), str(out)], env=env, check=True, timeout=600)
-        files = [*out.glob("*/records.parquet"), *out.glob("*/metrics/BenchmarkMetrics.csv")]
-        assert len(files) == 2
-        digests.append([hashlib.sha256(f.read_bytes()).hexdigest() for f in sorted(files)])
+        [folder] = [p.parent for p in out.glob("*/exp_config.json")]
+        digests.append(result_digests(folder))
+        assert digests[-1] is not None
         entries.append(sorted(p.name for p in (tmp_path / "cache" / "jax").iterdir()))
         compiles.append(json.loads((out / "compiles.json").read_text()))
     assert digests[0] == digests[1]

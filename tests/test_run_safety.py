@@ -3,7 +3,6 @@ metrics; ids are plain names; --overwrite removes only a urb-jax run; one writer
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import subprocess
@@ -13,6 +12,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from digests import result_digests
 from test_hybrid_loop import FakeExecutor, _train, confs  # noqa: F401  (module fixture)
 
 from urb_jax.core.errors import UrbJaxError
@@ -21,11 +21,6 @@ from urb_jax.experiment import run_folder
 from urb_jax.experiment.run import resume_train
 from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir
 from urb_jax.reporting import records as records_module
-
-
-def _digest(folder: Path) -> tuple[str, str]:
-    return tuple(hashlib.sha256((folder / f).read_bytes()).hexdigest()
-                 for f in ("records.parquet", "metrics/BenchmarkMetrics.csv"))
 
 
 class Killed(BaseException):
@@ -37,7 +32,8 @@ def test_kill_at_every_instant_of_the_finish_resumes_identically(confs, tmp_path
                                                                  tiny_iql_reference):
     """The case that lost data: records merged and parts deleted before `status: done`, so the
     resume replayed the test days over a test-only records file (123,200 rows became 40,000)."""
-    want = _digest(tiny_iql_reference[0].folder)  # the run on `confs`, uninterrupted (conftest.py)
+    want = result_digests(tiny_iql_reference[0].folder)  # the run on `confs`, uninterrupted (conftest.py)
+    assert want is not None
 
     def die(*_, **__):
         raise Killed(instant)
@@ -62,7 +58,7 @@ def test_kill_at_every_instant_of_the_finish_resumes_identically(confs, tmp_path
     else:
         resume_train("k", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
     assert json.loads((folder / "exp_config.json").read_text())["status"] == "done"
-    assert _digest(folder) == want
+    assert result_digests(folder) == want
     assert not (folder / "records.parts").exists()
 
 
