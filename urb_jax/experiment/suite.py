@@ -76,6 +76,11 @@ def folders_left(results_dir: Path, run: SuiteRun, recorded: frozenset[str] | se
     return [n for n in run.folder_names() if n not in recorded and run_status(results_dir / n) != "done"]
 
 
+def finished_here(results_dir: Path, names: list[str]) -> list[Path]:
+    """The folders among `names` finished under results_dir, in order."""
+    return [results_dir / n for n in names if run_status(results_dir / n) == "done"]
+
+
 def status(results_dir: Path, run: SuiteRun, recorded: frozenset[str] | set[str] = frozenset()) -> str:
     """'done' (every folder finished here), 'recorded' (every folder finished here or in `recorded`:
     the paper page's ledger, finished on another machine), 'running' (a live process is writing one
@@ -138,7 +143,7 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
         log(f"suite: run {i}/{len(runs)} {run.exp_id} ({run.kind}): {STATES[state]}, "
             f"{time.perf_counter() - t0:.0f} s into the suite")
         if state == "recorded":  # its seeds finished here, if any, still make the report
-            folders += [results_dir / n for n in run.folder_names() if run_status(results_dir / n) == "done"]
+            folders += finished_here(results_dir, run.folder_names())
             continue
         if state == "stopped":
             for line in run_progress(results_dir, run, recorded):
@@ -169,7 +174,7 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
             again = {"overwrite": True} if state == "stopped" else {}
             start(exp_id=part.exp_id, results_dir=str(results_dir), progress=progress, **again, **shared,
                   **part.kwargs)
-        folders += [results_dir / n for n in run.folder_names() if run_status(results_dir / n) == "done"]
+        folders += finished_here(results_dir, run.folder_names())
     return folders
 
 
@@ -261,15 +266,17 @@ def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.
     page's links hold wherever the results folder is); every figure there is linked."""
     spec = load_suite(find_config("suites", entry))
     planned = list(dict.fromkeys(name for r in spec.runs for name in r.folder_names()))
-    finished_here = [n for n in planned if run_status(results_dir / n) == "done"]  # unfinished runs' too
-    here = collect_folders([results_dir / n for n in finished_here]).drop(columns=["folder"], errors="ignore")
-    before = ledger[(ledger["entry"] == entry) & ledger["exp_id"].isin(set(planned) - set(finished_here))]
+    done_here = finished_here(results_dir, planned)  # seeds of unfinished runs too
+    here = collect_folders(done_here).drop(columns=["folder"], errors="ignore")
+    elsewhere = set(planned) - {f.name for f in done_here}
+    before = ledger[(ledger["entry"] == entry) & ledger["exp_id"].isin(elsewhere)]
     parts = [t for t in (here, before.drop(columns=["entry"])) if not t.empty]
     rows = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=["exp_id"])
     done = [r for r in spec.runs if set(r.folder_names()) <= set(rows["exp_id"])]
-    shown = rows["exp_id"].isin({n for r in done for n in r.folder_names()})
+    shown_names = {n for r in done for n in r.folder_names()}
+    shown = rows["exp_id"].isin(shown_names)
     runs, partial = rows[shown].reset_index(drop=True), rows[~shown].reset_index(drop=True)
-    folders = [results_dir / n for n in finished_here if n in set(runs["exp_id"])]
+    folders = [f for f in done_here if f.name in shown_names]
     if folders:
         report = write_report(spec.title, folders, results_dir / f"suite_{entry}", spec.preamble)
         for png in sorted((report.parent / "figures").glob("*.png")):
