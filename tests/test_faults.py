@@ -25,6 +25,7 @@ from urb_jax.experiment import checkpoints
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import JOURNAL_DIR
 from urb_jax.experiment.run import resume_train, run_baseline, run_train
+from urb_jax.experiment.run_folder import machine
 
 H = 10  # configs/task/test.json
 
@@ -57,6 +58,8 @@ def test_a_run_stopped_in_its_human_phase_resumes_to_the_same_results(confs, tmp
     assert sum(len(b) for b, _ in ex.batches) <= reference["days"] - 5  # those 5 (and repeats) read back
     assert result_digests(out.folder) == reference["digest"]
     assert not (folder / JOURNAL_DIR).exists()  # the run's own journal goes once it is done
+    cfg = json.loads((folder / "exp_config.json").read_text())
+    assert cfg["resumed"] == 1 and cfg["resumed_on"] == [machine()]  # where the resume computed too
 
 
 def test_a_stopped_run_can_be_replaced_with_overwrite(confs, tmp_path):  # noqa: F811

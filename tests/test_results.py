@@ -12,7 +12,13 @@ from fakeday import FakeDay
 from urb_jax.commands.cli import main
 from urb_jax.experiment.protocol import DayRecord
 from urb_jax.experiment.run import run_baseline
-from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir, source_commit
+from urb_jax.experiment.run_folder import (
+    ResultsExistError,
+    _cpu,
+    create_results_dir,
+    machine,
+    source_commit,
+)
 from urb_jax.reporting.leaderboard import aggregate, collect
 from urb_jax.reporting.records import (
     PARTS_DIR,
@@ -81,6 +87,7 @@ def test_baseline_run_writes_results_folder_and_leaderboard(tmp_path):
     cfg = json.loads((folder / "exp_config.json").read_text())
     assert cfg["status"] == "done" and cfg["env_seed"] == 2 and cfg["baseline_model"] == "random"
     assert cfg["network"] == "urb_grid" and cfg["human_learning_episodes"] == 3 and "versions" in cfg
+    assert cfg["machine"] == machine() and cfg["machine"]["backend"] == "cpu"  # where its bits came from
     bm = pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv")
     assert {"t_pre", "t_CAV", "t_HDV_test", "winrate", "cost_of_learning", "avg_speed_test"} <= set(
         bm.columns)
@@ -200,3 +207,16 @@ def test_source_commit_names_the_checkout_commit(tmp_path):
     assert commit(repo / "venv") == "unknown (not a git checkout)"
     (tmp_path / "plain").mkdir()
     assert commit(tmp_path / "plain") == "unknown (not a git checkout)"
+
+
+def test_a_run_names_the_cpu_its_bits_depend_on(tmp_path):
+    """A VM's generic model name gets family/model/stepping; only whole ISA flag names count."""
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nvendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel\t\t: 207\n"
+                    "model name\t: Intel(R) Xeon(R) Processor\nstepping\t: 2\n"
+                    "flags\t\t: fpu sse4_2 avx2 fma avx512fx avx512f amx_tile\n\nprocessor\t: 1\n")
+    model, isa = _cpu(info)
+    assert model == "Intel(R) Xeon(R) Processor (family 6, model 207, stepping 2)"
+    assert isa == ["sse4_2", "avx2", "fma", "avx512f", "amx_tile"]  # no avx, no avx512fx
+    model, isa = _cpu(tmp_path / "absent")
+    assert isa == [] and model  # not Linux: platform's name, no flags

@@ -58,6 +58,7 @@ from urb_jax.experiment.run_folder import (
     check_exp_id,
     create_results_dir,
     lock_run,
+    machine,
     mark_done,
     run_status,
     seed_groups_of,
@@ -377,8 +378,10 @@ def _resume_group(group: list[str], *, results_dir: str, progress: bool, executo
                 save_human_phase(f, human)
         result = _train(setup, args, seeds, folders, ex, human, progress, None)
     wall = time.perf_counter() - t0
+    here = machine()  # resumed_on: where each resume computed ("machine": where the run started)
     for c in configs:  # resumed_with_source: the code that finished it (versions: the code that started it)
-        c.update(resumed=c.get("resumed", 0) + 1, resumed_with_source=source_commit())
+        c.update(resumed=c.get("resumed", 0) + 1, resumed_with_source=source_commit(),
+                 resumed_on=[*c.get("resumed_on", []), here])
     walls = [wall + c.get("wall_time_s", 0.0) for c in configs]  # the killed runs' time included
     return _finish_group(folders, configs, result, setup.task, walls)
 
@@ -421,8 +424,8 @@ def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | No
         "training_eps": None,  # the task's 200 is no train run's: the SUMO training days, set at the end
         "mode": args["mode"], "num_agents": scn.n_agents,
         "num_machines": int(scn.n_agents * task.ratio_machines), "exp_type": "normal",
-        "human_days": task.human_learning_episodes, "versions": versions(), "command": sys.argv,
-        "status": "running", "human_phase_from": human_phase_from,
+        "human_days": task.human_learning_episodes, "versions": versions(), "machine": machine(),
+        "command": sys.argv, "status": "running", "human_phase_from": human_phase_from,
         SURROGATE_KEY: surrogate_human_days(hyb, task.human_learning_episodes, args["mode"] != "sumo"),
         **_dropped(scn, bool(args.get("drop_unroutable", False))),
         CONFIG_ALIASES_KEY: config_aliases(args),  # URB key names given, and what they set
@@ -661,6 +664,6 @@ def _baseline_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvC
         "env_config": env_path.stem, "task_config": task_path.stem, **labels,
         "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
         "exp_type": "normal", "human_days": task.human_learning_episodes, "training_days": task.training_eps,
-        "versions": versions(), "urb_jax_version": __version__, "command": sys.argv,
+        "versions": versions(), "machine": machine(), "urb_jax_version": __version__, "command": sys.argv,
         "status": "running", "human_phase_from": human_phase_from, **_dropped(scn, drop_unroutable),
     }

@@ -166,6 +166,43 @@ def versions() -> dict[str, str]:
     return out
 
 
+# The instruction-set extensions XLA:CPU's code can differ by (vector width, fused multiply-add,
+# bf16/AMX units): where two CPUs differ in these, the same run may differ in its last bits.
+ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "avx512_fp16",
+             "amx_tile", "neon", "asimd", "sve")
+
+
+def _cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[str, list[str]]:
+    """(model name, the ISA_FLAGS it has) from /proc/cpuinfo; platform's answer elsewhere."""
+    try:
+        text = cpuinfo.read_text()
+    except OSError:
+        return platform.processor() or platform.machine(), []
+    first = text.split("\n\n", 1)[0]  # the first processor's block; the others repeat it
+    fields = dict(line.split(":", 1) for line in first.splitlines() if ":" in line)
+    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    model = fields.get("model name") or fields.get("Hardware") or platform.processor() or platform.machine()
+    if "cpu family" in fields:  # a VM's model name can be generic ("Intel(R) Xeon(R) Processor")
+        get = fields.get
+        model += f" (family {get('cpu family')}, model {get('model')}, stepping {get('stepping')})"
+    have = set((fields.get("flags") or fields.get("Features") or "").split())
+    return model, [f for f in ISA_FLAGS if f in have]
+
+
+def machine() -> dict[str, Any]:
+    """Where this process computes: JAX's backend and device, the CPU and its ISA flags, the cores.
+    A run records it because its last bits can depend on it: Ingolstadt's QMIX seed 0, the same
+    command on two 2-core CPU hosts (no change to what the code computes between), gave t_CAV
+    5.0097 and 4.9711 (docs/results.md, session 23); a GPU and a CPU differ too (docs/hybrid.md,
+    "Equivalence")."""
+    import jax  # the callers have it loaded already; this module's other users need not
+
+    device = jax.devices()[0]
+    model, isa = _cpu()
+    return {"backend": jax.default_backend(), "device": device.device_kind,
+            "devices": jax.device_count(), "cpu": model, "cpu_isa": isa, "cpu_count": os.cpu_count()}
+
+
 def write_config(folder: Path, config: dict[str, Any]) -> None:
     write_json(folder / CONFIG_FILE, config)
 
