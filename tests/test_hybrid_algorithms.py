@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from digests import result_digests
 from test_hybrid_loop import FakeExecutor
 
 from urb_jax.algorithms.registry import ALGORITHMS
-from urb_jax.experiment.run import run_train
+from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.reporting.records import read_records
 
 TINY = {
@@ -37,15 +38,23 @@ HYB = {"train_days": 12, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_day
 
 @pytest.mark.slow
 @pytest.mark.parametrize("alg", ALGORITHMS)
-def test_every_algorithm_runs_the_loop(alg, tmp_path):
+def test_every_algorithm_runs_the_loop_and_resumes_to_the_same_bytes(alg, tmp_path):
+    """Each learner's whole state (replay memory, target networks, mixer, optimiser, exploration)
+    survives a stop after round 1: the resumed run's records and metrics are the uninterrupted
+    run's bytes (test_hybrid_loop.py kills IQL at more instants)."""
     (tmp_path / "alg.json").write_text(json.dumps(TINY[alg]))
     (tmp_path / "hyb.json").write_text(json.dumps(HYB))
-    (out,) = run_train(alg=alg, task_conf="test", alg_conf=str(tmp_path / "alg.json"),
-                       hybrid_conf=str(tmp_path / "hyb.json"), results_dir=str(tmp_path / "r"), exp_id=alg,
-                       progress=False, executor=FakeExecutor())
+    kw = dict(alg=alg, task_conf="test", alg_conf=str(tmp_path / "alg.json"),
+              hybrid_conf=str(tmp_path / "hyb.json"), results_dir=str(tmp_path / "r"), progress=False)
+    (out,) = run_train(exp_id=alg, executor=FakeExecutor(), **kw)
     cfg = json.loads((out.folder / "exp_config.json").read_text())
-    assert cfg["status"] == "done" and cfg["sumo_training_days"] >= 2
+    assert cfg["status"] == "done" and cfg["sumo_training_days"] >= 2 and cfg["rounds"] == 2
     assert np.isfinite(out.metrics["t_CAV"]) and np.isfinite(out.metrics["t_train"])
+    (stopped,) = run_train(exp_id="stopped", executor=FakeExecutor(), stop_after_round=1, **kw)
+    assert stopped.stopped == 1 and result_digests(stopped.folder) is None
+    (resumed,) = resume_train("stopped", results_dir=str(tmp_path / "r"), progress=False,
+                              executor=FakeExecutor())
+    assert result_digests(resumed.folder) == result_digests(out.folder)
 
 
 @pytest.mark.slow
