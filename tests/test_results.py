@@ -210,13 +210,14 @@ def test_source_commit_names_the_checkout_commit(tmp_path):
 
 
 def test_a_run_names_the_cpu_its_bits_depend_on(tmp_path):
-    """A VM's generic model name gets family/model/stepping; only whole ISA flag names count."""
+    """A VM's generic model name gets family/model/stepping and the cache size; only whole ISA flag
+    names count."""
     info = tmp_path / "cpuinfo"
     info.write_text("processor\t: 0\nvendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel\t\t: 207\n"
-                    "model name\t: Intel(R) Xeon(R) Processor\nstepping\t: 2\n"
+                    "model name\t: Intel(R) Xeon(R) Processor\nstepping\t: 2\ncache size\t: 107520 KB\n"
                     "flags\t\t: fpu sse4_2 avx2 fma avx512fx avx512f amx_tile\n\nprocessor\t: 1\n")
     model, isa = _cpu(info)
-    assert model == "Intel(R) Xeon(R) Processor (family 6, model 207, stepping 2)"
+    assert model == "Intel(R) Xeon(R) Processor (family 6, model 207, stepping 2), cache 107520 KB"
     assert isa == ["sse4_2", "avx2", "fma", "avx512f", "amx_tile"]  # no avx, no avx512fx
     model, isa = _cpu(tmp_path / "absent")
     assert isa == [] and model  # not Linux: platform's name, no flags

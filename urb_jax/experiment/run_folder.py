@@ -182,9 +182,11 @@ def _cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[str, list[str]]:
     fields = dict(line.split(":", 1) for line in first.splitlines() if ":" in line)
     fields = {k.strip(): v.strip() for k, v in fields.items()}
     model = fields.get("model name") or fields.get("Hardware") or platform.processor() or platform.machine()
+    get = fields.get
     if "cpu family" in fields:  # a VM's model name can be generic ("Intel(R) Xeon(R) Processor")
-        get = fields.get
         model += f" (family {get('cpu family')}, model {get('model')}, stepping {get('stepping')})"
+    if "cache size" in fields:  # product kernels size their blocks by it (docs/results.md, session 23)
+        model += f", cache {get('cache size')}"
     have = set((fields.get("flags") or fields.get("Features") or "").split())
     return model, [f for f in ISA_FLAGS if f in have]
 
