@@ -166,8 +166,8 @@ def versions() -> dict[str, str]:
     return out
 
 
-# The instruction-set extensions XLA:CPU's code can differ by (vector width, fused multiply-add,
-# bf16/AMX units): where two CPUs differ in these, the same run may differ in its last bits.
+# The instruction-set extensions XLA:CPU's code can differ by. Measured (docs/results.md, session
+# 23): without FMA a product's last bits change; AVX-512 against AVX2 alone changed none there.
 ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "avx512_fp16",
              "amx_tile", "neon", "asimd", "sve")
 
@@ -181,13 +181,13 @@ def _cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[str, list[str]]:
     first = text.split("\n\n", 1)[0]  # the first processor's block; the others repeat it
     fields = dict(line.split(":", 1) for line in first.splitlines() if ":" in line)
     fields = {k.strip(): v.strip() for k, v in fields.items()}
-    model = fields.get("model name") or fields.get("Hardware") or platform.processor() or platform.machine()
     get = fields.get
+    model = get("model name") or get("Hardware") or platform.processor() or platform.machine()
     if "cpu family" in fields:  # a VM's model name can be generic ("Intel(R) Xeon(R) Processor")
         model += f" (family {get('cpu family')}, model {get('model')}, stepping {get('stepping')})"
     if "cache size" in fields:  # product kernels size their blocks by it (docs/results.md, session 23)
         model += f", cache {get('cache size')}"
-    have = set((fields.get("flags") or fields.get("Features") or "").split())
+    have = set((get("flags") or get("Features") or "").split())
     return model, [f for f in ISA_FLAGS if f in have]
 
 
