@@ -179,8 +179,7 @@ def _cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[str, list[str]]:
     except OSError:
         return platform.processor() or platform.machine(), []
     first = text.split("\n\n", 1)[0]  # the first processor's block; the others repeat it
-    fields = dict(line.split(":", 1) for line in first.splitlines() if ":" in line)
-    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    fields = {k.strip(): v.strip() for k, v in (ln.split(":", 1) for ln in first.splitlines() if ":" in ln)}
     get = fields.get
     model = get("model name") or get("Hardware") or platform.processor() or platform.machine()
     if "cpu family" in fields:  # a VM's model name can be generic ("Intel(R) Xeon(R) Processor")
@@ -199,9 +198,8 @@ def machine() -> dict[str, Any]:
     "Equivalence")."""
     import jax  # the callers have it loaded already; this module's other users need not
 
-    device = jax.devices()[0]
     model, isa = _cpu()
-    return {"backend": jax.default_backend(), "device": device.device_kind,
+    return {"backend": jax.default_backend(), "device": jax.devices()[0].device_kind,
             "devices": jax.device_count(), "cpu": model, "cpu_isa": isa, "cpu_count": os.cpu_count()}
 
 
