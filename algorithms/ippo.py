@@ -30,7 +30,14 @@ import optax
 
 from urb_jax.algorithms.configs import PPOConfig
 from urb_jax.algorithms.frames import frame_obs, turn_positions, unacted
-from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.learner import (
+    Day,
+    Learner,
+    collect_then_update,
+    day_metrics,
+    reset_envs,
+    scan_train,
+)
 from urb_jax.algorithms.networks import MLP, hidden_layers, make_agent_net, obs_scale, take_agents
 from urb_jax.algorithms.policy import entropy, masked
 from urb_jax.algorithms.updates import adam_step, clipped_adam, days_shape, flatten_days, gae, minibatch_days
@@ -219,12 +226,7 @@ def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) 
         metrics = day_metrics(days) | jax.tree_util.tree_map(jnp.mean, aux)
         return runner._replace(params=params, opt_state=opt_state), metrics
 
-    def iteration(runner: RunnerState, key: jax.Array):
-        k_col, k_upd = jax.random.split(key)
-        env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days,
-                                   runner.env_params)
-        return update_from_days(runner._replace(env_states=env_states), days, k_upd)
-
+    iteration = collect_then_update(env, policy, update_from_days, n_days)
     return Learner(init, iteration, update_from_days, policy, config.n_iters, n_days)
 
 

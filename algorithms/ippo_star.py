@@ -21,7 +21,14 @@ import jax
 import jax.numpy as jnp
 
 from urb_jax.algorithms.configs import IPPOStarConfig
-from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.learner import (
+    Day,
+    Learner,
+    collect_then_update,
+    day_metrics,
+    reset_envs,
+    scan_train,
+)
 from urb_jax.algorithms.networks import make_per_cav_mlp, take_agents
 from urb_jax.algorithms.policy import entropy, masked
 from urb_jax.algorithms.updates import adam_step, clipped_adam, days_shape
@@ -126,12 +133,7 @@ def make_learner(config: IPPOStarConfig, env: RoutingEnv) -> Learner:
         metrics = day_metrics(days) | {"loss": loss.mean()}
         return runner._replace(params=params, opt_state=opt_state), metrics
 
-    def iteration(runner: RunnerState, key: jax.Array):
-        k_col, k_upd = jax.random.split(key)
-        env_states, days = collect(env, policy_for(runner.params), k_col, runner.env_states, n_days,
-                                   runner.env_params)
-        return update_from_days(runner._replace(env_states=env_states), days, k_upd)
-
+    iteration = collect_then_update(env, policy, update_from_days, n_days)
     return Learner(init, iteration, update_from_days, policy, n_iters, n_days)
 
 

@@ -20,7 +20,14 @@ import optax
 
 from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
 from urb_jax.algorithms.configs import IQLStarConfig
-from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.learner import (
+    Day,
+    Learner,
+    collect_then_update,
+    day_metrics,
+    reset_envs,
+    scan_train,
+)
 from urb_jax.algorithms.networks import make_per_cav_mlp
 from urb_jax.algorithms.policy import eps_greedy_policy
 from urb_jax.algorithms.updates import adam_step, flatten_days, select_tree
@@ -110,12 +117,7 @@ def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:
         metrics = day_metrics(days) | {"loss": loss.mean(), "eps": runner.eps}
         return runner._replace(params=params, opt_state=opt_state, buffer=buffer, eps=eps), metrics
 
-    def iteration(runner: RunnerState, key: jax.Array):
-        k_col, k_upd = jax.random.split(key)
-        env_states, days = collect(env, policy_for(runner.params, runner.eps), k_col, runner.env_states,
-                                   n_days, runner.env_params)
-        return update_from_days(runner._replace(env_states=env_states), days, k_upd)
-
+    iteration = collect_then_update(env, policy, update_from_days, n_days)
     return Learner(init, iteration, update_from_days, policy, n_iters, n_days)
 
 

@@ -26,6 +26,13 @@ class Day(NamedTuple):
     time_cav: jnp.ndarray  # [] mean CAV travel time, minutes
     time_human: jnp.ndarray  # []
 
+    @classmethod
+    def zeros(cls, n_cavs: int, obs_size: int) -> Day:
+        """One day of zeros: the template a replay memory of days is shaped on."""
+        c, d = n_cavs, obs_size
+        return cls(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
+                   jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
+
 
 def env_day(env: RoutingEnv, policy: Policy, key: jax.Array, state: EnvState, params: EnvParams = None,
             levels: tuple[np.ndarray, ...] | None = None) -> tuple[EnvState, Day]:
@@ -72,6 +79,21 @@ class Learner(NamedTuple):
     policy: Callable[[Any, bool], Policy]
     n_iters: int
     days_per_iter: int
+
+
+def collect_then_update(env: RoutingEnv, policy: Callable[[Any, bool], Policy], update_from_days: Callable,
+                        n_days: int, exploration: Callable[[Any], dict[str, jnp.ndarray]] | None = None):
+    """Every learner's `iteration`: `n_days` days in each of the runner's envs under its exploring
+    policy, then one `update_from_days` on them. `exploration(runner)`: how that policy explored
+    (e.g. epsilon), logged beside the update's metrics."""
+    def iteration(runner: Any, key: jax.Array) -> tuple[Any, dict[str, jnp.ndarray]]:
+        k_col, k_upd = jax.random.split(key)
+        env_states, days = collect(env, policy(runner, True), k_col, runner.env_states, n_days,
+                                   runner.env_params)
+        updated, metrics = update_from_days(runner._replace(env_states=env_states), days, k_upd)
+        return updated, metrics | (exploration(runner) if exploration else {})
+
+    return iteration
 
 
 def scan_train(learner: Learner, n_keys: int) -> Callable[[jax.Array], dict[str, Any]]:

@@ -25,7 +25,14 @@ import jax.numpy as jnp
 from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
 from urb_jax.algorithms.configs import MixerConfig
 from urb_jax.algorithms.frames import make_replay
-from urb_jax.algorithms.learner import Day, Learner, collect, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.learner import (
+    Day,
+    Learner,
+    collect_then_update,
+    day_metrics,
+    reset_envs,
+    scan_train,
+)
 from urb_jax.algorithms.networks import WideDense, hidden_layers, make_agent_net, obs_scale
 from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
 from urb_jax.algorithms.updates import (
@@ -153,9 +160,8 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
         c, d = n_cav, env.obs_size
         params = {"agent": net.init(k_agent),
                   "mixer": mix.init(k_mix, jnp.zeros((c,)), jnp.zeros((c * d,)))}
-        example = Day(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
-                      jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
-        return RunnerState(params, params, tx.init(params), buffer_init(replay.example(example), capacity),
+        return RunnerState(params, params, tx.init(params),
+                           buffer_init(replay.example(Day.zeros(c, d)), capacity),
                            reset_envs(env, k_env, n_envs), env.default_params, jnp.zeros((), jnp.int32))
 
     def policy(runner: RunnerState, explore: bool = True):
@@ -181,14 +187,8 @@ def make_learner(config: MixerConfig, env: RoutingEnv, mixer: str = "qmix") -> L
         return runner._replace(params=params, target=target, opt_state=opt_state, buffer=buffer,
                                day=runner.day + t), metrics
 
-    def iteration(runner: RunnerState, key: jax.Array):
-        k_col, k_upd = jax.random.split(key)
-        eps = eps_at(runner.day)
-        env_states, days = collect(env, policy_for(runner.params, eps), k_col, runner.env_states, n_days,
-                                   runner.env_params)
-        runner, metrics = update_from_days(runner._replace(env_states=env_states), days, k_upd)
-        return runner, metrics | {"eps": eps}
-
+    iteration = collect_then_update(env, policy, update_from_days, n_days,
+                                    exploration=lambda runner: {"eps": eps_at(runner.day)})
     return Learner(init, iteration, update_from_days, policy, config.n_iters, n_days)
 
 
