@@ -30,14 +30,7 @@ import optax
 
 from urb_jax.algorithms.configs import PPOConfig
 from urb_jax.algorithms.frames import frame_obs, turn_positions, unacted
-from urb_jax.algorithms.learner import (
-    Day,
-    Learner,
-    collect_then_update,
-    day_metrics,
-    reset_envs,
-    scan_train,
-)
+from urb_jax.algorithms.learner import Day, Learner, collect_then_update, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import MLP, hidden_layers, make_agent_net, obs_scale, take_agents
 from urb_jax.algorithms.policy import entropy, masked
 from urb_jax.algorithms.updates import adam_step, clipped_adam, days_shape, flatten_days, gae, minibatch_days

@@ -21,14 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from urb_jax.algorithms.configs import IPPOStarConfig
-from urb_jax.algorithms.learner import (
-    Day,
-    Learner,
-    collect_then_update,
-    day_metrics,
-    reset_envs,
-    scan_train,
-)
+from urb_jax.algorithms.learner import Day, Learner, collect_then_update, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import make_per_cav_mlp, take_agents
 from urb_jax.algorithms.policy import entropy, masked
 from urb_jax.algorithms.updates import adam_step, clipped_adam, days_shape

@@ -21,14 +21,7 @@ import jax.numpy as jnp
 from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
 from urb_jax.algorithms.configs import IQLConfig
 from urb_jax.algorithms.frames import make_replay
-from urb_jax.algorithms.learner import (
-    Day,
-    Learner,
-    collect_then_update,
-    day_metrics,
-    reset_envs,
-    scan_train,
-)
+from urb_jax.algorithms.learner import Day, Learner, collect_then_update, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import hidden_layers, make_agent_net
 from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
 from urb_jax.algorithms.updates import (

@@ -20,14 +20,7 @@ import optax
 
 from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
 from urb_jax.algorithms.configs import IQLStarConfig
-from urb_jax.algorithms.learner import (
-    Day,
-    Learner,
-    collect_then_update,
-    day_metrics,
-    reset_envs,
-    scan_train,
-)
+from urb_jax.algorithms.learner import Day, Learner, collect_then_update, day_metrics, reset_envs, scan_train
 from urb_jax.algorithms.networks import make_per_cav_mlp
 from urb_jax.algorithms.policy import eps_greedy_policy
 from urb_jax.algorithms.updates import adam_step, flatten_days, select_tree
