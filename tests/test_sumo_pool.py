@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 import logging
-import os
-import signal
-import threading
-import time
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from urb_jax.sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from kill_worker import run_killing_a_busy_worker
 
 pytestmark = pytest.mark.sumo
 
@@ -49,24 +49,9 @@ def test_pool_preserves_order_and_matches_in_process_runs(pool, grid_scenario, d
 def test_worker_killed_mid_day_is_restarted_and_day_repeated(pool, grid_scenario, days, caplog):
     choices, seeds, ref = days
     restarts = pool.restarts
-    killed: list[int] = []
     index = {w.proc.pid: w.index for w in pool.slots}
-
-    def killer() -> None:
-        deadline = time.monotonic() + 60
-        while not pool.busy_pids() and time.monotonic() < deadline:
-            time.sleep(0.002)
-        time.sleep(0.05)  # into the day (a grid day takes a few tenths of a second)
-        pids = pool.busy_pids()
-        if pids:
-            os.kill(pids[0], signal.SIGKILL)
-            killed.append(pids[0])
-
-    th = threading.Thread(target=killer)
-    th.start()
     with caplog.at_level(logging.WARNING, logger="urb_jax"):
-        out = pool.run_days(grid_scenario, choices, seeds)
-    th.join()
+        out, killed = run_killing_a_busy_worker(pool, lambda: pool.run_days(grid_scenario, choices, seeds))
     assert killed and pool.restarts == restarts + 1
     # one warning for the one restart, naming the worker, its day and its SUMO log
     (warning,) = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]

@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import logging
 import os
-import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -16,6 +14,9 @@ import pytest
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from kill_worker import run_killing_a_busy_worker
 
 pytestmark = pytest.mark.sumo
 
@@ -95,23 +96,8 @@ def test_network_file_travels_through_the_object_store(rex, grid_scenario, days,
 def test_killed_actor_is_replaced_and_its_day_repeated(rex, grid_scenario, days, caplog):
     choices, seeds, ref = days
     restarts = rex.restarts
-    killed: list[int] = []
-
-    def killer() -> None:
-        deadline = time.monotonic() + 60
-        while not rex.busy_pids() and time.monotonic() < deadline:
-            time.sleep(0.002)
-        time.sleep(0.05)  # into the day (a grid day takes a few tenths of a second)
-        pids = rex.busy_pids()
-        if pids:
-            os.kill(pids[0], signal.SIGKILL)
-            killed.append(pids[0])
-
-    th = threading.Thread(target=killer)
-    th.start()
     with caplog.at_level(logging.WARNING, logger="urb_jax"):
-        out = rex.run_days(grid_scenario, choices, seeds)
-    th.join()
+        out, killed = run_killing_a_busy_worker(rex, lambda: rex.run_days(grid_scenario, choices, seeds))
     assert killed and rex.restarts == restarts + 1
     assert killed[0] not in [s.pid for s in rex.slots]
     # one warning for the one restart, naming the actor and its SUMO log
