@@ -150,3 +150,32 @@ def test_hybrid_config_values_are_validated(tmp_path):
     bad.write_text(json.dumps({"seed_axis": "pmap"}))
     with pytest.raises(ConfigError, match=r"key 'seed_axis' is 'pmap'\. Fix: use one of auto, vmap, map"):
         load_json(HybridConfig, bad)
+
+
+
+def test_a_run_killed_outright_keeps_its_time_up_to_its_last_checkpoint(confs, tmp_path, monkeypatch):  # noqa: F811
+    """A kill -9 writes no wall_time_s to exp_config.json: the resumed run's wall time still counts
+    the killed process's time up to its newest checkpoint (before: only the resume's own time)."""
+    from urb_jax.experiment.hybrid.trainer import HybridTrainer
+
+    real_round = HybridTrainer.run_round
+
+    def dies_in_round_2(self, r):
+        if r == 1:
+            raise Killed("round 2")
+        return real_round(self, r)
+
+    monkeypatch.setattr(HybridTrainer, "run_round", dies_in_round_2)
+    with pytest.raises(Killed):
+        _train(confs, tmp_path, "k")
+    monkeypatch.undo()
+    folder = tmp_path / "k"
+    config = json.loads((folder / "exp_config.json").read_text())
+    assert config["status"] == "running" and "wall_time_s" not in config  # what the kill left
+    meta = json.loads((folder / "checkpoints" / "round_00001" / "meta.json").read_text())
+    (row,) = meta["rounds"][0]  # round 1 was checkpointed: its time and the human phase's are in
+    assert meta["wall_s"] >= config["human_phase_s"] + row["surrogate_s"] + row["sumo_s"]
+    (out,) = resume_train("k", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    done = json.loads((folder / "exp_config.json").read_text())
+    assert done["status"] == "done" and done["wall_time_s"] == round(out.wall_time_s, 2)
+    assert out.wall_time_s > meta["wall_s"]

@@ -58,6 +58,9 @@ class RoundMeta:
     record_parts: list[int]  # per seed: record parts written up to this checkpoint
     rounds: list[list[dict[str, Any]]]  # per seed: the rounds.csv rows so far
     rounds_total: int | None = None  # the group's planned rounds (None: a checkpoint from before the key)
+    # the group's wall seconds when it was written, earlier processes' included, so a run killed
+    # outright (no exp_config write) still counts them on resume (None: from before the key)
+    wall_s: float | None = None
 
 
 def latest_checkpoint(folder: Path) -> tuple[int, Path] | None:
@@ -113,7 +116,8 @@ def restore_round(folder: Path, target: Any, seeds: Sequence[int]
     samples = [SumoSample(z[f"choices_{i}"], z[f"travel_time_{i}"], z[f"arrived_{i}"])
                for i in range(len(seeds))]
     return state, samples, RoundMeta(rounds_done, meta["sumo_days"], list(seeds), meta.get("folders", []),
-                                     meta["record_parts"], meta["rounds"], meta.get("rounds_total"))
+                                     meta["record_parts"], meta["rounds"], meta.get("rounds_total"),
+                                     meta.get("wall_s"))
 
 
 def checkpoint_meta(folder: Path) -> dict[str, Any] | None:

@@ -34,7 +34,7 @@ from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_
 from urb_jax.core.paths import absolute_dir
 from urb_jax.core.progress import Progress
 from urb_jax.core.version import __version__
-from urb_jax.experiment.checkpoints import latest_checkpoint
+from urb_jax.experiment.checkpoints import checkpoint_meta, latest_checkpoint
 from urb_jax.experiment.human_phase import (
     JOURNAL_KEY,
     SURROGATE_KEY,
@@ -370,20 +370,26 @@ def _resume_group(group: list[str], *, results_dir: str, progress: bool, executo
     with _stops_cleanly(folders), \
             _executor(executor, setup.hyb, folders[0], executor_kind or args.get("executor", "pool"),
                       ray_address or args.get("ray_address")) as ex:
-        t0 = time.perf_counter()
+        elapsed = _wall_clock(_wall_before(folders[0], configs))
         human = None
         if latest_checkpoint(folders[0]) is None:  # stopped before round 0's checkpoint: start over
             human = _human_phase_again(setup, args, configs[0], Path(results_dir), ex, progress)
             for f in folders:
                 save_human_phase(f, human)
-        result = _train(setup, args, seeds, folders, ex, human, progress, None)
-    wall = time.perf_counter() - t0
+        result = _train(setup, args, seeds, folders, ex, human, progress, None, elapsed)
+    wall = elapsed()
     here = machine()  # resumed_on: where each resume computed ("machine": where the run started)
     for c in configs:  # resumed_with_source: the code that finished it (versions: the code that started it)
         c.update(resumed=c.get("resumed", 0) + 1, resumed_with_source=source_commit(),
                  resumed_on=[*c.get("resumed_on", []), here])
-    walls = [wall + c.get("wall_time_s", 0.0) for c in configs]  # the killed runs' time included
-    return _finish_group(folders, configs, result, setup.task, walls)
+    return _finish_group(folders, configs, result, setup.task, [wall] * len(folders))
+
+
+def _wall_before(folder: Path, configs: list[dict[str, Any]]) -> float:
+    """The group's wall seconds before this resume: what a stop wrote to exp_config.json, or, after
+    a kill that wrote nothing, what its newest checkpoint recorded (the time since it is lost work)."""
+    meta = checkpoint_meta(folder) or {}
+    return max([meta.get("wall_s") or 0.0, *(c.get("wall_time_s", 0.0) for c in configs)])
 
 
 def check_resume_overrides(folder: Path, args: TrainArgs, given: list[str] | None) -> None:
@@ -461,23 +467,31 @@ def _train_groups(setup: TrainSetup, args: TrainArgs, configs: dict[int, dict[st
         for s in group:
             configs[s]["human_phase_s"] = round(t_human, 2)
             write_config(folders[s], configs[s])
-        ts = time.perf_counter()
+        elapsed = _wall_clock(t_human if gi == 0 else 0.0)
         result = _train(setup, args, group, [folders[s] for s in group], executor, human, progress,
-                        stop_after_round)
-        wall = time.perf_counter() - ts + (t_human if gi == 0 else 0.0)
+                        stop_after_round, elapsed)
+        wall = elapsed()
         outs += _finish_group([folders[s] for s in group], [configs[s] for s in group], result, setup.task,
                               [wall] * len(group))
     return outs
 
 
 def _train(setup: TrainSetup, args: TrainArgs, seeds: list[int], folders: list[Path], executor: DayExecutor,
-           human: HumanPhase | None, progress: bool, stop_after_round: int | None
-           ) -> list[TrainSummary] | Stopped:
+           human: HumanPhase | None, progress: bool, stop_after_round: int | None,
+           elapsed: Callable[[], float]) -> list[TrainSummary] | Stopped:
     with round_log(folders, args.get("log"), resumed=human is None) as on_round:
         return train_group(scn=setup.scn, task=setup.task, env_cfg=setup.env, alg=args["alg"],
                            alg_config=setup.alg_config, cfg=setup.hyb, mode=args["mode"], seeds=seeds,
                            env_seed=args["env_seed"], folders=folders, executor=executor, human=human,
-                           progress=progress, stop_after_round=stop_after_round, on_round=on_round)
+                           progress=progress, stop_after_round=stop_after_round, on_round=on_round,
+                           elapsed=elapsed)
+
+
+def _wall_clock(before: float) -> Callable[[], float]:
+    """The group's wall seconds so far: `before` (earlier processes', the human phase) plus this
+    process's since now."""
+    t0 = time.perf_counter()
+    return lambda: before + time.perf_counter() - t0
 
 
 def _finish_group(folders: list[Path], configs: list[dict[str, Any]], result: list[TrainSummary] | Stopped,

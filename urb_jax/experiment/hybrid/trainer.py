@@ -197,8 +197,10 @@ class HybridTrainer:
     what the surrogate refits on; kept in mode hybrid only, so a `--mode sumo` checkpoint does not
     grow with its thousands of SUMO days), rounds.csv rows and the SUMO training days done."""
 
-    def __init__(self, g: Group, executor: DayExecutor, writers: list[RecordsWriter], bar: Progress) -> None:
+    def __init__(self, g: Group, executor: DayExecutor, writers: list[RecordsWriter], bar: Progress,
+                 elapsed: Callable[[], float] | None = None) -> None:
         self.g, self.executor, self.writers, self.bar = g, executor, writers, bar
+        self.elapsed = elapsed  # the group's wall seconds so far, for its checkpoints
         self.tag = f"[{g.S} seeds] " if g.S > 1 else ""
         self.state: TrainState
         self.samples: list[SumoSample] = []
@@ -247,7 +249,8 @@ class HybridTrainer:
     def checkpoint(self, rounds_done: int) -> None:
         g = self.g
         meta = RoundMeta(rounds_done, self.sumo_done, list(g.seeds), [f.name for f in g.folders],
-                         [w.n_parts for w in self.writers], self.rounds_logs, g.plan.n_rounds)
+                         [w.n_parts for w in self.writers], self.rounds_logs, g.plan.n_rounds,
+                         None if self.elapsed is None else round(self.elapsed(), 2))
         save_round(g.folders[0], self.state._asdict(), self.samples, meta)
 
     def set_params(self) -> None:
@@ -432,6 +435,7 @@ def train_group(
     cfg: HybridConfig, mode: str, seeds: list[int], env_seed: int, folders: list[Path],
     executor: DayExecutor, human: HumanPhase | None, progress: bool = True,
     stop_after_round: int | None = None, on_round: Callable[[list[Row]], None] | None = None,
+    elapsed: Callable[[], float] | None = None,
 ) -> list[TrainSummary] | Stopped:
     """Train S seeds together, seed s in `folders[s]` (fresh when `human` is given, else resumed from
     the group checkpoint in `folders[0]`); returns one summary per seed.
@@ -441,7 +445,8 @@ def train_group(
     the test days likewise. Each seed refits its own surrogate on its own SUMO days (a loop over
     seeds outside the jitted training). `stop_after_round` simulates a kill (tests). `on_round`
     gets each round's rounds.csv rows (one per seed) once it is checkpointed; a resumed group
-    passes it the restored rounds first, so it sees every round in order (e.g. TensorBoard)."""
+    passes it the restored rounds first, so it sees every round in order (e.g. TensorBoard).
+    `elapsed()`: the group's wall seconds so far, earlier processes' included, kept in each checkpoint."""
     g = setup_group(scn, task, env_cfg, alg, alg_config, cfg, mode, seeds, env_seed, folders,
                     human.humans if human is not None else None)
     writers = [RecordsWriter(f, scn.agent_id, scn.agent_od, scn.agent_depart, flush_every=10**9)
@@ -455,7 +460,7 @@ def train_group(
         bar.note(g.memory_note)  # the probe run before the group's state exists (hybrid/memory.py)
         g.clock.start_round(first)
         g.clock.before_training(g.probe() * g.S * cfg.num_envs, g.S * cfg.num_envs)
-    trainer = HybridTrainer(g, executor, writers, bar)
+    trainer = HybridTrainer(g, executor, writers, bar, elapsed)
     start = trainer.start(human) if human is not None else trainer.resume()
     bar.update(g.S * (g.H + start * per_round), trainer.tag + ("resume" if human is None else "human"))
     if on_round is not None:  # a resumed group's restored rounds first
