@@ -81,12 +81,17 @@ class Learner(NamedTuple):
     days_per_iter: int
 
 
-def collect_then_update(env: RoutingEnv, policy: Callable[[Any, bool], Policy], update_from_days: Callable,
-                        n_days: int, exploration: Callable[[Any], dict[str, jnp.ndarray]] | None = None):
+Metrics = dict[str, jnp.ndarray]  # a learner's per-iteration scalars (loss, eps, mean times, ...)
+
+
+def collect_then_update(env: RoutingEnv, policy: Callable[[Any, bool], Policy],
+                        update_from_days: Callable[[Any, Day, jax.Array], tuple[Any, Metrics]], n_days: int,
+                        exploration: Callable[[Any], Metrics] | None = None
+                        ) -> Callable[[Any, jax.Array], tuple[Any, Metrics]]:
     """Every learner's `iteration`: `n_days` days in each of the runner's envs under its exploring
     policy, then one `update_from_days` on them. `exploration(runner)`: how that policy explored
     (e.g. epsilon), logged beside the update's metrics."""
-    def iteration(runner: Any, key: jax.Array) -> tuple[Any, dict[str, jnp.ndarray]]:
+    def iteration(runner: Any, key: jax.Array) -> tuple[Any, Metrics]:
         k_col, k_upd = jax.random.split(key)
         env_states, days = collect(env, policy(runner, True), k_col, runner.env_states, n_days,
                                    runner.env_params)

@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from urb_jax.algorithms.learner import Day, Learner, collect
+from urb_jax.algorithms.learner import Day, Learner, Metrics, collect
 from urb_jax.experiment.hybrid.memory import tree_size
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.rollout import act_by_levels, dependency_levels
@@ -26,7 +26,6 @@ from urb_jax.surrogate import Static, predict
 from urb_jax.surrogate.calibrate import Params
 
 Runner = Any  # the learner's runner state (an algorithm-specific pytree), [S] leading
-Metrics = dict[str, jnp.ndarray]
 # (runner [S], keys [S, P, 2], real states [S, P])
 #   -> (obs [S, P, C, D], CAV actions [S, P, C], joint choices [S, P, N])
 ActFn = Callable[[Runner, jax.Array, EnvState], tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]]
