@@ -198,7 +198,7 @@ class HybridTrainer:
     grow with its thousands of SUMO days), rounds.csv rows and the SUMO training days done."""
 
     def __init__(self, g: Group, executor: DayExecutor, writers: list[RecordsWriter], bar: Progress,
-                 elapsed: Callable[[], float] | None = None) -> None:
+                 elapsed: Callable[[], float]) -> None:
         self.g, self.executor, self.writers, self.bar = g, executor, writers, bar
         self.elapsed = elapsed  # the group's wall seconds so far, for its checkpoints
         self.tag = f"[{g.S} seeds] " if g.S > 1 else ""
@@ -250,7 +250,7 @@ class HybridTrainer:
         g = self.g
         meta = RoundMeta(rounds_done, self.sumo_done, list(g.seeds), [f.name for f in g.folders],
                          [w.n_parts for w in self.writers], self.rounds_logs, g.plan.n_rounds,
-                         None if self.elapsed is None else round(self.elapsed(), 2))
+                         round(self.elapsed(), 2))
         save_round(g.folders[0], self.state._asdict(), self.samples, meta)
 
     def set_params(self) -> None:
@@ -433,9 +433,8 @@ class HybridTrainer:
 def train_group(
     *, scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, alg_config: AlgoConfig,
     cfg: HybridConfig, mode: str, seeds: list[int], env_seed: int, folders: list[Path],
-    executor: DayExecutor, human: HumanPhase | None, progress: bool = True,
+    executor: DayExecutor, human: HumanPhase | None, elapsed: Callable[[], float], progress: bool = True,
     stop_after_round: int | None = None, on_round: Callable[[list[Row]], None] | None = None,
-    elapsed: Callable[[], float] | None = None,
 ) -> list[TrainSummary] | Stopped:
     """Train S seeds together, seed s in `folders[s]` (fresh when `human` is given, else resumed from
     the group checkpoint in `folders[0]`); returns one summary per seed.
