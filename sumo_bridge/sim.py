@@ -145,83 +145,19 @@ class Simulator:
 
         ids = [str(int(a)) for a in scn.agent_id]
         depart = np.asarray(scn.agent_depart, dtype=np.int64)
-        od = scn.agent_od
-        add = libsumo.vehicle.add
-        for i in insertion_order(depart, cav):
-            add(ids[i], route_id(od[i], choices[i]), typeID="AV" if cav[i] else "Human",
-                depart=str(int(depart[i])))
-
-        pos = {v: i for i, v in enumerate(ids)}
-        removed: dict[str, tuple[float, int]] = {}  # id -> (SUMO time, status)
         last_depart = int(depart.max())
         if cfg.max_sim_time_s <= last_depart:
             raise ValueError(f"SumoConfig.max_sim_time_s={cfg.max_sim_time_s} must exceed the last "
                              f"departure ({last_depart} s)")
-        stuck, poll, cap = cfg.stuck_time_s, cfg.poll_every_s, cfg.max_sim_time_s
-        urb_rule, exact_rule = cfg.stuck_rule == "urb", cfg.stuck_rule == "routerl"
-        speed_var = libsumo.constants.VAR_SPEED
-        zero_steps: dict[str, int] = {}  # "routerl" rule: consecutive observations at speed 0
-        vehicle, simulation, step = libsumo.vehicle, libsumo.simulation, libsumo.simulationStep
-        watch: set[str] = set()
-        next_poll = 0.0
-        t = simulation.getTime()
+        add = libsumo.vehicle.add
+        for i in insertion_order(depart, cav):
+            add(ids[i], route_id(scn.agent_od[i], choices[i]), typeID="AV" if cav[i] else "Human",
+                depart=str(int(depart[i])))
+        pos = {v: i for i, v in enumerate(ids)}
+        removed = _DaySteps(libsumo, cfg, pos, last_depart).run()
 
-        def remove(v: str, status: int) -> None:
-            removed[v] = (t, status)
-            if exact_rule and v in zero_steps:
-                vehicle.unsubscribe(v)  # libsumo fails the next step on a removed subscribed vehicle
-            vehicle.remove(v, libsumo.constants.REMOVE_VAPORIZED)
-
-        while True:
-            if exact_rule:  # RouteRL's own check, every step, on every vehicle of ours driving
-                for v, r in vehicle.getAllSubscriptionResults().items():
-                    if r[speed_var] == 0:
-                        zero_steps[v] = zero_steps.get(v, 0) + 1
-                        if zero_steps[v] > stuck:
-                            remove(v, REMOVED_STUCK)
-                    else:
-                        zero_steps[v] = 0
-            if t >= next_poll:
-                running = vehicle.getIDList()
-                if urb_rule:
-                    watch = set()
-                    for v in running:
-                        if v in pos:
-                            w = vehicle.getWaitingTime(v)
-                            if w > stuck:
-                                remove(v, REMOVED_STUCK)
-                            elif w + poll > stuck:
-                                watch.add(v)
-                if t > last_depart and not any(v in pos and v not in removed for v in running) \
-                        and not any(v in pos for v in simulation.getPendingVehicles()):
-                    break  # only foreign vehicles left (e.g. a test's blocker)
-                next_poll = t + poll
-            elif watch:
-                for v in list(watch):
-                    try:
-                        w = vehicle.getWaitingTime(v)
-                    except libsumo.TraCIException:  # arrived meanwhile
-                        watch.discard(v)
-                        continue
-                    if w > stuck:
-                        remove(v, REMOVED_STUCK)
-                        watch.discard(v)
-            if t >= cap:
-                for v in (*vehicle.getIDList(), *simulation.getPendingVehicles()):
-                    if v in pos and v not in removed:
-                        remove(v, REMOVED_CAP)
-                break
-            step()
-            t = simulation.getTime()
-            if exact_rule:
-                for v in simulation.getDepartedIDList():
-                    if v in pos:
-                        vehicle.subscribe(v, [speed_var])
-            if simulation.getMinExpectedNumber() == 0:
-                break
-
-        end_time = simulation.getTime()
-        teleports = int(float(simulation.getParameter("", "stats.teleports.total")))
+        end_time = libsumo.simulation.getTime()
+        teleports = int(float(libsumo.simulation.getParameter("", "stats.teleports.total")))
         self._load((*key[:2], int(next_seed), key[3]))  # closes this day's tripinfo; pre-loads the next day
         trips = parse_tripinfo(trip_path)
         trip_path.unlink(missing_ok=True)
@@ -281,6 +217,101 @@ class Simulator:
             teleports=teleports, n_removed=int(out.sum()), sim_end_time=float(end_time),
             wall_time=float(wall), leave_time=leave,
         )
+
+
+class _DaySteps:
+    """SUMO's steps of one loaded day, and the stuck rule that removes our vehicles on the way.
+
+    `"urb"` polls every vehicle's waiting time every `poll_every_s` and, between polls, only the
+    few that could pass `stuck_time_s` before the next; `"routerl"` is RouteRL's check, every step,
+    of every vehicle of ours driving (speed exactly 0 for more than `stuck_time_s` steps); `"sumo"`
+    leaves removal to SUMO's teleport option. `max_sim_time_s` removes whatever is left."""
+
+    def __init__(self, libsumo: ModuleType, cfg: SumoConfig, pos: dict[str, int], last_depart: int) -> None:
+        self.libsumo, self.vehicle, self.simulation = libsumo, libsumo.vehicle, libsumo.simulation
+        self.pos, self.last_depart = pos, last_depart  # our vehicles' ids -> agent index
+        self.stuck, self.poll, self.cap = cfg.stuck_time_s, cfg.poll_every_s, cfg.max_sim_time_s
+        self.urb_rule, self.exact_rule = cfg.stuck_rule == "urb", cfg.stuck_rule == "routerl"
+        self.speed_var = libsumo.constants.VAR_SPEED
+        self.removed: dict[str, tuple[float, int]] = {}  # id -> (SUMO time, status)
+        self.zero_steps: dict[str, int] = {}  # "routerl": consecutive observations at speed 0
+        self.watch: set[str] = set()  # "urb": vehicles checked every step until the next poll
+        self.t = self.simulation.getTime()
+
+    def run(self) -> dict[str, tuple[float, int]]:
+        """Steps until none of our vehicles is left (or only foreign ones drive); the removed."""
+        next_poll = 0.0
+        while True:
+            if self.exact_rule:
+                self._count_zero_speeds()
+            if self.t >= next_poll:
+                if self._poll():
+                    break  # only foreign vehicles left (e.g. a test's blocker)
+                next_poll = self.t + self.poll
+            elif self.watch:
+                self._check_watched()
+            if self.t >= self.cap:
+                self._remove_at_cap()
+                break
+            self.libsumo.simulationStep()
+            self.t = self.simulation.getTime()
+            if self.exact_rule:
+                self._watch_speeds_of_departed()
+            if self.simulation.getMinExpectedNumber() == 0:
+                break
+        return self.removed
+
+    def _remove(self, v: str, status: int) -> None:
+        self.removed[v] = (self.t, status)
+        if self.exact_rule and v in self.zero_steps:
+            self.vehicle.unsubscribe(v)  # libsumo fails the next step on a removed subscribed vehicle
+        self.vehicle.remove(v, self.libsumo.constants.REMOVE_VAPORIZED)
+
+    def _count_zero_speeds(self) -> None:
+        for v, r in self.vehicle.getAllSubscriptionResults().items():
+            if r[self.speed_var] == 0:
+                self.zero_steps[v] = self.zero_steps.get(v, 0) + 1
+                if self.zero_steps[v] > self.stuck:
+                    self._remove(v, REMOVED_STUCK)
+            else:
+                self.zero_steps[v] = 0
+
+    def _watch_speeds_of_departed(self) -> None:
+        for v in self.simulation.getDepartedIDList():
+            if v in self.pos:
+                self.vehicle.subscribe(v, [self.speed_var])
+
+    def _poll(self) -> bool:
+        """The periodic check: URB's waiting times, then whether only foreign vehicles are left."""
+        running = self.vehicle.getIDList()
+        if self.urb_rule:
+            self.watch = set()
+            for v in running:
+                if v in self.pos:
+                    w = self.vehicle.getWaitingTime(v)
+                    if w > self.stuck:
+                        self._remove(v, REMOVED_STUCK)
+                    elif w + self.poll > self.stuck:
+                        self.watch.add(v)
+        return (self.t > self.last_depart
+                and not any(v in self.pos and v not in self.removed for v in running)
+                and not any(v in self.pos for v in self.simulation.getPendingVehicles()))
+
+    def _check_watched(self) -> None:
+        for v in list(self.watch):
+            try:
+                w = self.vehicle.getWaitingTime(v)
+            except self.libsumo.TraCIException:  # arrived meanwhile
+                self.watch.discard(v)
+                continue
+            if w > self.stuck:
+                self._remove(v, REMOVED_STUCK)
+                self.watch.discard(v)
+
+    def _remove_at_cap(self) -> None:
+        for v in (*self.vehicle.getIDList(), *self.simulation.getPendingVehicles()):
+            if v in self.pos and v not in self.removed:
+                self._remove(v, REMOVED_CAP)
 
 
 _SIMULATOR: Simulator | None = None
