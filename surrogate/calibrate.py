@@ -56,6 +56,10 @@ class SumoSample:
     def __len__(self) -> int:
         return int(self.choices.shape[0])
 
+    def days(self, rows: Sequence[int]) -> SumoSample:
+        """The sample of these days only."""
+        return SumoSample(self.choices[rows], self.travel_time[rows], self.arrived[rows])
+
 
 @dataclass(frozen=True)
 class FitConfig:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -109,84 +110,37 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     c_te, kinds = make_choices(scn, static, p0, vcfg.test_days, seed=2)
     t0 = time.perf_counter()
     tr = SumoSample.from_days(c_tr, sumo_days(scn, c_tr, vcfg.seed, workers=vcfg.workers))
-    te_days = sumo_days(scn, c_te, vcfg.seed, workers=vcfg.workers)
-    te = SumoSample.from_days(c_te, te_days)
+    te = SumoSample.from_days(c_te, sumo_days(scn, c_te, vcfg.seed, workers=vcfg.workers))
     t_sumo = time.perf_counter() - t0
     t0 = time.perf_counter()
     params = calibrate(scn, tr, config=config, fit=fit, static=static)
     t_fit = time.perf_counter() - t0
     write_npz(out_dir / "params.npz", **{k: np.asarray(v) for k, v in params.items()})
 
-    pred0 = np.asarray(predict_jit(p0, static, jnp.asarray(c_te)))
-    pred = np.asarray(predict_jit(params, static, jnp.asarray(c_te)))
-    pred_tr = np.asarray(predict_jit(params, static, jnp.asarray(c_tr)))
-    metrics = {"held_out": error_metrics(pred, te), "uncalibrated": error_metrics(pred0, te),
-               "train": error_metrics(pred_tr, tr)}
-    m = te.arrived
-    rel = np.where(m, (pred - te.travel_time) / te.travel_time, np.nan)
-    dep = np.broadcast_to(scn.agent_depart, rel.shape)
-    fft = np.take_along_axis(scn.fft_full, c_te.T, axis=1).T
-    ratio = te.travel_time / fft
-    metrics["bias_by_depart_min"] = binned_bias(dep[m] / 60, rel[m], np.arange(0, 31 + 5, 5.0))
-    metrics["bias_by_congestion"] = binned_bias(
-        ratio[m], rel[m], np.quantile(ratio[m], [0, 0.2, 0.4, 0.6, 0.8, 1.0]))
-    metrics["by_kind"] = {
-        kd: error_metrics(pred[[i for i, x in enumerate(kinds) if x == kd]],
-                          SumoSample(c_te[[i for i, x in enumerate(kinds) if x == kd]],
-                                     te.travel_time[[i for i, x in enumerate(kinds) if x == kd]],
-                                     te.arrived[[i for i, x in enumerate(kinds) if x == kd]]))
-        for kd in sorted(set(kinds))
-    }
+    def predictor(p: dict) -> Callable[[np.ndarray], np.ndarray]:
+        return lambda choices: np.asarray(predict_jit(p, static, jnp.asarray(choices)))
 
-    # Better-route agreement: single-agent deviations from held-out equilibrium-like/perturbed days.
-    rng = np.random.default_rng(vcfg.seed)
-    base_days = [i for i, kd in enumerate(kinds) if kd in ("equilibrium", "perturbed")] or [0]
-    agents = rng.choice(scn.n_agents, size=min(vcfg.deviation_agents, scn.n_agents), replace=False)
-    dev_rows, dev_meta = [], []
-    for j, chunk in enumerate(np.array_split(agents, len(base_days))):
-        if len(chunk) == 0:
-            continue
-        rows, meta = deviation_choices(c_te[base_days[j]], chunk, scn.route_valid)
-        dev_rows.append(rows)
-        dev_meta += [(base_days[j], i, k) for i, k in meta]
-    dev = np.concatenate(dev_rows)
+    pred, pred0 = predictor(params)(c_te), predictor(p0)(c_te)  # [D, N]
+    metrics = {"held_out": error_metrics(pred, te), "uncalibrated": error_metrics(pred0, te),
+               "train": error_metrics(predictor(params)(c_tr), tr)}
+    dep, ratio, bias = _bias(scn, pred, te)
+    metrics.update(bias)
+    metrics["by_kind"] = {}
+    for kd in sorted(set(kinds)):
+        rows = [i for i, x in enumerate(kinds) if x == kd]
+        metrics["by_kind"][kd] = error_metrics(pred[rows], te.days(rows))
+
+    agents, dev, dev_meta = _deviations(scn, c_te, kinds, vcfg)
     t0 = time.perf_counter()
     dev_sumo = np.stack([d.travel_time for d in sumo_days(scn, dev, vcfg.seed, workers=vcfg.workers)])
     t_dev = time.perf_counter() - t0
-    dev_sur = np.asarray(predict_jit(params, static, jnp.asarray(dev)))
-    free_t = np.take_along_axis(scn.fft_full, dev.T, axis=1).T  # free-flow predictor as a baseline
-    agree = {"surrogate": [], "free_flow": [], "uncalibrated": []}
-    dev_p0 = np.asarray(predict_jit(p0, static, jnp.asarray(dev)))
-    fft_base = np.take_along_axis(scn.fft_full, c_te.T, axis=1).T
-    for bd in sorted({b for b, _, _ in dev_meta}):
-        sel = [r for r, (b, _, _) in enumerate(dev_meta) if b == bd]
-        meta = [(i, k) for b, i, k in dev_meta if b == bd]
-        ref_base, ref_dev = te.travel_time[bd], dev_sumo[sel, [i for i, _ in meta]]
-        for name, mb, md in (("surrogate", pred[bd], dev_sur), ("uncalibrated", pred0[bd], dev_p0),
-                             ("free_flow", fft_base[bd], free_t)):
-            mod_dev = md[sel, [i for i, _ in meta]]
-            agree[name].append((np.stack([ref_base, mb]), np.stack([ref_dev, mod_dev]), c_te[bd], meta))
-    metrics["route_agreement"] = {name: _pool_agreement(v, scn.k) for name, v in agree.items()}
-
-    # Noise floor: the same deviation experiment for a few agents with another SUMO seed.
-    noise_agents = agents[: vcfg.noise_agents]
-    sel = [r for r, (_, i, _) in enumerate(dev_meta) if i in set(noise_agents.tolist())]
-    if sel:
-        bds = sorted({dev_meta[r][0] for r in sel})
-        base2 = {bd: sumo_days(scn, c_te[bd:bd + 1], vcfg.seed + 1, workers=1)[0].travel_time for bd in bds}
-        dev2 = np.stack([d.travel_time for d in sumo_days(scn, dev[sel], vcfg.seed + 1,
-                                                          workers=vcfg.workers)])
-        items = []
-        for bd in bds:
-            rs = [j for j, r in enumerate(sel) if dev_meta[r][0] == bd]
-            meta = [(dev_meta[sel[j]][1], dev_meta[sel[j]][2]) for j in rs]
-            idx = [i for i, _ in meta]
-            ref = np.stack([te.travel_time[bd], base2[bd]])
-            d = np.stack([dev_sumo[[sel[j] for j in rs], idx], dev2[rs, idx]])
-            items.append((ref, d, c_te[bd], meta))
-        metrics["route_agreement"]["sumo_seed_vs_seed"] = _pool_agreement(items, scn.k)
-        metrics["seed_to_seed_mape_base"] = float(np.mean([
-            np.mean(np.abs(base2[bd] - te.travel_time[bd]) / te.travel_time[bd]) for bd in bds]))
+    models = {"surrogate": (pred, predictor(params)(dev)), "free_flow": _free_flow(scn, c_te, dev),
+              "uncalibrated": (pred0, predictor(p0)(dev))}
+    metrics["route_agreement"] = {
+        name: _pool_agreement(_agreement_items(te, dev_sumo, dev_meta, c_te, *m), scn.k)
+        for name, m in models.items()}
+    metrics.update(_noise_floor(scn, vcfg, agents[: vcfg.noise_agents], c_te, te, dev, dev_meta, dev_sumo,
+                                metrics["route_agreement"]))
 
     metrics["timing_s"] = {"sumo_days": round(t_sumo, 1), "calibration": round(t_fit, 1),
                            "deviation_days": round(t_dev, 1),
@@ -198,6 +152,83 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     _plots(out_dir, pred, te, dep, ratio)
     write_text(out_dir / "report.md", _report(metrics))
     return metrics
+
+
+def _bias(scn: Scenario, pred: np.ndarray, te: SumoSample) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The held-out relative error binned by departure minute and by congestion (SUMO time over
+    free-flow time), with the departures [D, N] and the congestion ratios [D, N] the plots use."""
+    m = te.arrived
+    rel = np.where(m, (pred - te.travel_time) / te.travel_time, np.nan)
+    dep = np.broadcast_to(scn.agent_depart, rel.shape)
+    fft = np.take_along_axis(scn.fft_full, te.choices.T, axis=1).T
+    ratio = te.travel_time / fft
+    return dep, ratio, {
+        "bias_by_depart_min": binned_bias(dep[m] / 60, rel[m], np.arange(0, 31 + 5, 5.0)),
+        "bias_by_congestion": binned_bias(ratio[m], rel[m],
+                                          np.quantile(ratio[m], [0, 0.2, 0.4, 0.6, 0.8, 1.0])),
+    }
+
+
+def _deviations(scn: Scenario, c_te: np.ndarray, kinds: list[str],
+                vcfg: ValidationConfig) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
+    """Single-agent deviations from the held-out equilibrium-like and perturbed days: the agents
+    drawn, the deviation days [R, N] and each row's (held-out day, agent, route)."""
+    rng = np.random.default_rng(vcfg.seed)
+    base_days = [i for i, kd in enumerate(kinds) if kd in ("equilibrium", "perturbed")] or [0]
+    agents = rng.choice(scn.n_agents, size=min(vcfg.deviation_agents, scn.n_agents), replace=False)
+    dev_rows, dev_meta = [], []
+    for j, chunk in enumerate(np.array_split(agents, len(base_days))):
+        if len(chunk) == 0:
+            continue
+        rows, meta = deviation_choices(c_te[base_days[j]], chunk, scn.route_valid)
+        dev_rows.append(rows)
+        dev_meta += [(base_days[j], i, k) for i, k in meta]
+    return agents, np.concatenate(dev_rows), dev_meta
+
+
+def _free_flow(scn: Scenario, c_te: np.ndarray, dev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The free-flow predictor, as a baseline: each route's free-flow time on the held-out and the
+    deviation days."""
+    return (np.take_along_axis(scn.fft_full, c_te.T, axis=1).T,
+            np.take_along_axis(scn.fft_full, dev.T, axis=1).T)
+
+
+def _agreement_items(te: SumoSample, dev_sumo: np.ndarray, dev_meta: list[tuple[int, int, int]],
+                     c_te: np.ndarray, model_base: np.ndarray, model_dev: np.ndarray) -> list[tuple]:
+    """Per held-out day: SUMO's and the model's times of the base day and of its deviations, for
+    `_pool_agreement`."""
+    items = []
+    for bd in sorted({b for b, _, _ in dev_meta}):
+        sel = [r for r, (b, _, _) in enumerate(dev_meta) if b == bd]
+        meta = [(i, k) for b, i, k in dev_meta if b == bd]
+        idx = [i for i, _ in meta]
+        items.append((np.stack([te.travel_time[bd], model_base[bd]]),
+                      np.stack([dev_sumo[sel, idx], model_dev[sel, idx]]), c_te[bd], meta))
+    return items
+
+
+def _noise_floor(scn: Scenario, vcfg: ValidationConfig, noise_agents: np.ndarray, c_te: np.ndarray,
+                 te: SumoSample, dev: np.ndarray, dev_meta: list[tuple[int, int, int]], dev_sumo: np.ndarray,
+                 agreement: dict) -> dict:
+    """The same deviation experiment for a few agents with another SUMO seed: how often SUMO agrees
+    with itself (added to `agreement`), and its seed-to-seed per-agent MAPE on the base days."""
+    sel = [r for r, (_, i, _) in enumerate(dev_meta) if i in set(noise_agents.tolist())]
+    if not sel:
+        return {}
+    bds = sorted({dev_meta[r][0] for r in sel})
+    base2 = {bd: sumo_days(scn, c_te[bd:bd + 1], vcfg.seed + 1, workers=1)[0].travel_time for bd in bds}
+    dev2 = np.stack([d.travel_time for d in sumo_days(scn, dev[sel], vcfg.seed + 1, workers=vcfg.workers)])
+    items = []
+    for bd in bds:
+        rs = [j for j, r in enumerate(sel) if dev_meta[r][0] == bd]
+        meta = [(dev_meta[sel[j]][1], dev_meta[sel[j]][2]) for j in rs]
+        idx = [i for i, _ in meta]
+        ref = np.stack([te.travel_time[bd], base2[bd]])
+        d = np.stack([dev_sumo[[sel[j] for j in rs], idx], dev2[rs, idx]])
+        items.append((ref, d, c_te[bd], meta))
+    agreement["sumo_seed_vs_seed"] = _pool_agreement(items, scn.k)
+    return {"seed_to_seed_mape_base": float(np.mean([
+        np.mean(np.abs(base2[bd] - te.travel_time[bd]) / te.travel_time[bd]) for bd in bds]))}
 
 
 def _pool_agreement(items: list, k: int) -> dict[str, float]:
