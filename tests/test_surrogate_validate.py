@@ -1,8 +1,11 @@
-"""Validation metrics on hand-made numbers (the SUMO-driven part is exercised by the command)."""
+"""Validation metrics on hand-made numbers, and `urb-jax validate-surrogate` end to end on the grid."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
+import pytest
 
 from urb_jax.surrogate.calibrate import SumoSample
 from urb_jax.surrogate.validate import deviation_choices, error_metrics, route_agreement
@@ -41,3 +44,38 @@ def test_route_agreement_counts_signs_and_argmin():
     assert a["clear_pairs"] == 2 and abs(a["pair_agreement_clear"] - 0.5) < 1e-9
     # fastest: agent 0 ref route 1, model route 2 (disagree); agent 1 ref route 0, model route 1
     assert a["argmin_agreement"] == 0.0
+
+
+@pytest.mark.sumo
+def test_validate_surrogate_end_to_end_calibration_beats_the_uncalibrated_model(tmp_path, capsys):
+    """`urb-jax validate-surrogate` on the embedded grid, as small as it goes: SUMO calibration and
+    held-out days, single-agent deviations and the second-seed noise floor, all in its files."""
+    from urb_jax.commands.cli import main
+
+    out = tmp_path / "val"
+    argv = ["validate-surrogate", "--days", "5", "--train-days", "10", "--agents", "6", "--workers", "1",
+            "--out", str(out)]
+    assert main(argv) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    held, raw = m["held_out"], m["uncalibrated"]
+    # calibration on SUMO days must beat the uncalibrated BPR model on days it never saw
+    assert held["mape"] < raw["mape"] and held["mean_tt_error"] < raw["mean_tt_error"]
+    assert held["mean_tt_error"] < 0.05 and held["r2"] > 0.5
+    assert held["sumo_mean_tt"] == raw["sumo_mean_tt"]  # the same SUMO days judge both
+    kinds = m["setup"]["test_kinds"]
+    assert len(kinds) == 5 and set(m["by_kind"]) == set(kinds)
+    assert sum(k["removed"] for k in m["by_kind"].values()) == held["removed"]
+    agree = m["route_agreement"]
+    assert set(agree) == {"surrogate", "free_flow", "uncalibrated", "sumo_seed_vs_seed"}
+    n_dev = m["setup"]["deviation_days"]  # one day per (agent, other valid route): 6 agents, up to 3 each
+    assert 6 <= n_dev <= 18
+    assert all(agree[name]["pairs"] == n_dev for name in ("surrogate", "free_flow", "uncalibrated"))
+    assert 0 < agree["sumo_seed_vs_seed"]["pairs"] < n_dev  # the noise floor re-runs 2 of the 6 agents
+    assert all(0.0 <= a["pair_agreement"] <= 1.0 for a in agree.values())
+    assert 0 < m["seed_to_seed_mape_base"] < 0.5
+    params = np.load(out / "params.npz")
+    assert len(params.files) > 0
+    report = (out / "report.md").read_text()
+    assert f"{100 * held['mape']:.2f}%" in report and f"{100 * raw['mape']:.2f}%" in report
+    assert (out / "scatter_residuals.png").stat().st_size > 0
+    assert str(out / "report.md") in capsys.readouterr().out
