@@ -48,3 +48,37 @@ def test_a_line_per_round_even_with_no_progress(monkeypatch):
     assert quiet.getvalue().splitlines() == [f"train/SUMO: {d}/300 day ({p}%), 10 day/s, ETA {e}"
                                              for d, p, e in ((100, 33, "0:20"), (200, 67, "0:10"),
                                                              (300, 100, "0:00"))]
+
+
+def test_a_resumed_runs_rate_and_eta_are_its_own_pace(monkeypatch):
+    """Days restored by a resume count as done, not as this process's speed: 600 restored days and
+    100 new ones in 10 minutes is 0.167 day/s and 30 minutes left, not 1.17 day/s and 4 minutes."""
+    clock = Clock()
+    monkeypatch.setattr(progress_module.time, "monotonic", clock)
+    quiet = io.StringIO()
+    bar = Progress(1000, False, desc="train/SUMO", stream=quiet)
+    bar.skip(600, "resume")
+    for _ in range(10):
+        clock.t += 60
+        bar.update(10, "train/SUMO")
+    assert bar.line() == "train/SUMO: 700/1000 day (70%), 0.167 day/s, ETA 30:00"
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_a_resumed_runs_bar_starts_at_the_restored_days_at_its_own_pace():
+    """On a terminal: the tqdm bar shows the restored days, and its rate (tqdm's own clock, smoothed)
+    counts only the days done since: 10 days in at least 0.2 s is at most 50 day/s."""
+    import time
+
+    bar = Progress(1000, True, desc="train/SUMO", stream=Terminal())
+    bar.skip(600, "resume")
+    time.sleep(0.2)
+    bar.update(10, "train/SUMO")
+    fmt = bar.bar.format_dict
+    assert fmt["n"] == 610 and fmt["initial"] == 600
+    assert fmt["rate"] is not None and 0 < fmt["rate"] <= 50
+    bar.close()

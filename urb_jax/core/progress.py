@@ -26,6 +26,7 @@ class Progress:
         self.stream = stream or sys.stderr
         self.enabled = enabled
         self.done = 0
+        self.skipped = 0  # done before this process (a resume): in the count, not in the rate
         self.phase = desc
         self.info: dict[str, str] = {}
         self.bar: Any = None
@@ -48,6 +49,20 @@ class Progress:
         elif time.monotonic() - self._last_line >= self.every_s:
             self._line()
 
+    def skip(self, n: int, phase: str | None = None) -> None:
+        """`n` units done before this process (restored by a resume, or a phase timed by another
+        bar): counted as done, left out of the rate, so a resumed run's ETA is its own pace's."""
+        self.done += n
+        self.skipped += n
+        if phase is not None:
+            self.phase = phase
+        if self.bar is not None:
+            self.bar.n += n
+            self.bar.initial += n  # tqdm's rate: (n - initial) / elapsed
+            self.bar.last_print_n = self.bar.n  # and its smoothed rate: dn since the last print
+            self.bar.set_description(self.phase or None)
+            self.bar.refresh()
+
     def milestone(self) -> None:
         """The end of a unit of work worth a line of its own (a training round): printed as a plain
         line whenever there is no bar, `--no-progress` included, so a long run's log says where it
@@ -66,7 +81,7 @@ class Progress:
     def line(self) -> str:
         """'phase: done/total day (pct), rate day/s, ETA m:ss, key=value ...'."""
         dt = max(time.monotonic() - self._t0, 1e-9)
-        rate = self.done / dt
+        rate = (self.done - self.skipped) / dt
         eta = (self.total - self.done) / rate if rate > 0 else float("nan")
         pct = 100.0 * self.done / max(self.total, 1)
         eta_s = f"{int(eta // 60)}:{int(eta % 60):02d}" if eta == eta else "?"

@@ -461,7 +461,7 @@ def train_group(
         g.clock.before_training(g.probe() * g.S * cfg.num_envs, g.S * cfg.num_envs)
     trainer = HybridTrainer(g, executor, writers, bar, elapsed)
     start = trainer.start(human) if human is not None else trainer.resume()
-    bar.update(g.S * (g.H + start * per_round), trainer.tag + ("resume" if human is None else "human"))
+    bar.skip(g.S * (g.H + start * per_round), trainer.tag + ("resume" if human is None else "human"))
     if on_round is not None:  # a resumed group's restored rounds first
         for r in range(start):
             on_round([log[r] for log in trainer.rounds_logs])
