@@ -120,10 +120,12 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     def predictor(p: dict) -> Callable[[np.ndarray], np.ndarray]:
         return lambda choices: np.asarray(predict_jit(p, static, jnp.asarray(choices)))
 
-    pred, pred0 = predictor(params)(c_te), predictor(p0)(c_te)  # [D, N]
+    surrogate, uncalibrated = predictor(params), predictor(p0)
+    pred, pred0 = surrogate(c_te), uncalibrated(c_te)  # [D, N]
+    fft = free_flow_times(scn, c_te)  # [D, N]
     metrics = {"held_out": error_metrics(pred, te), "uncalibrated": error_metrics(pred0, te),
-               "train": error_metrics(predictor(params)(c_tr), tr)}
-    dep, ratio, bias = _bias(scn, pred, te)
+               "train": error_metrics(surrogate(c_tr), tr)}
+    dep, ratio, bias = _bias(scn, pred, te, fft)
     metrics.update(bias)
     metrics["by_kind"] = {}
     for kd in sorted(set(kinds)):
@@ -134,8 +136,8 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     t0 = time.perf_counter()
     dev_sumo = np.stack([d.travel_time for d in sumo_days(scn, dev, vcfg.seed, workers=vcfg.workers)])
     t_dev = time.perf_counter() - t0
-    models = {"surrogate": (pred, predictor(params)(dev)), "free_flow": _free_flow(scn, c_te, dev),
-              "uncalibrated": (pred0, predictor(p0)(dev))}
+    models = {"surrogate": (pred, surrogate(dev)), "free_flow": (fft, free_flow_times(scn, dev)),
+              "uncalibrated": (pred0, uncalibrated(dev))}
     metrics["route_agreement"] = {
         name: _pool_agreement(_agreement_items(te, dev_sumo, dev_meta, c_te, *m), scn.k)
         for name, m in models.items()}
@@ -154,13 +156,13 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     return metrics
 
 
-def _bias(scn: Scenario, pred: np.ndarray, te: SumoSample) -> tuple[np.ndarray, np.ndarray, dict]:
+def _bias(scn: Scenario, pred: np.ndarray, te: SumoSample,
+          fft: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
     """The held-out relative error binned by departure minute and by congestion (SUMO time over
     free-flow time), with the departures [D, N] and the congestion ratios [D, N] the plots use."""
     m = te.arrived
     rel = np.where(m, (pred - te.travel_time) / te.travel_time, np.nan)
     dep = np.broadcast_to(scn.agent_depart, rel.shape)
-    fft = np.take_along_axis(scn.fft_full, te.choices.T, axis=1).T
     ratio = te.travel_time / fft
     return dep, ratio, {
         "bias_by_depart_min": binned_bias(dep[m] / 60, rel[m], np.arange(0, 31 + 5, 5.0)),
@@ -186,11 +188,9 @@ def _deviations(scn: Scenario, c_te: np.ndarray, kinds: list[str],
     return agents, np.concatenate(dev_rows), dev_meta
 
 
-def _free_flow(scn: Scenario, c_te: np.ndarray, dev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The free-flow predictor, as a baseline: each route's free-flow time on the held-out and the
-    deviation days."""
-    return (np.take_along_axis(scn.fft_full, c_te.T, axis=1).T,
-            np.take_along_axis(scn.fft_full, dev.T, axis=1).T)
+def free_flow_times(scn: Scenario, choices: np.ndarray) -> np.ndarray:
+    """Each agent's free-flow time on its chosen route, per day [D, N]: the baseline predictor."""
+    return np.take_along_axis(scn.fft_full, choices.T, axis=1).T
 
 
 def _agreement_items(te: SumoSample, dev_sumo: np.ndarray, dev_meta: list[tuple[int, int, int]],
@@ -218,14 +218,10 @@ def _noise_floor(scn: Scenario, vcfg: ValidationConfig, noise_agents: np.ndarray
     bds = sorted({dev_meta[r][0] for r in sel})
     base2 = {bd: sumo_days(scn, c_te[bd:bd + 1], vcfg.seed + 1, workers=1)[0].travel_time for bd in bds}
     dev2 = np.stack([d.travel_time for d in sumo_days(scn, dev[sel], vcfg.seed + 1, workers=vcfg.workers)])
-    items = []
+    base2_days = np.full(te.travel_time.shape, np.nan)  # [D, N] float64 as SUMO gives, the base days again
     for bd in bds:
-        rs = [j for j, r in enumerate(sel) if dev_meta[r][0] == bd]
-        meta = [(dev_meta[sel[j]][1], dev_meta[sel[j]][2]) for j in rs]
-        idx = [i for i, _ in meta]
-        ref = np.stack([te.travel_time[bd], base2[bd]])
-        d = np.stack([dev_sumo[[sel[j] for j in rs], idx], dev2[rs, idx]])
-        items.append((ref, d, c_te[bd], meta))
+        base2_days[bd] = base2[bd]
+    items = _agreement_items(te, dev_sumo[sel], [dev_meta[r] for r in sel], c_te, base2_days, dev2)
     agreement["sumo_seed_vs_seed"] = _pool_agreement(items, scn.k)
     return {"seed_to_seed_mape_base": float(np.mean([
         np.mean(np.abs(base2[bd] - te.travel_time[bd]) / te.travel_time[bd]) for bd in bds]))}
