@@ -194,6 +194,20 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
                                   pd.read_csv(ref.folder / "rounds.csv").filter(like="time"))
 
 
+def test_kept_checkpoints_are_the_learning_curve_snapshots(confs, tmp_path, tiny_iql_reference):
+    """keep_checkpoints_at keeps the first round to reach each day count (rounds of 6 days here: 0 ->
+    round 0, 7 -> round 2) beside the newest one, and changes nothing the run computes."""
+    (out,) = _train(confs, tmp_path, "kept", overrides=["hybrid.keep_checkpoints_at=[0, 7]"])
+    kept = sorted(p.name for p in (out.folder / "checkpoints").glob("round_*"))
+    assert kept == ["round_00000", "round_00002", "round_00003"]
+    assert all((out.folder / "checkpoints" / k / "meta.json").is_file() for k in kept)
+    meta = json.loads((out.folder / "checkpoints" / "round_00002" / "meta.json").read_text())
+    assert meta["rounds_done"] == 2 and len(meta["rounds"][0]) == 2
+    ref = tiny_iql_reference[0]
+    pd.testing.assert_frame_equal(read_records(out.folder), read_records(ref.folder))
+    pd.testing.assert_frame_equal(_metrics(out.folder), _metrics(ref.folder))
+
+
 def test_resume_finds_the_network_from_another_folder(confs, tmp_path, monkeypatch, tiny_iql_reference):
     """A run started with a relative --networks-dir resumes from another working folder (from the
     network file it started with); a --networks-dir given to the resume wins, and one whose network

@@ -12,7 +12,7 @@ from __future__ import annotations
 import errno
 import json
 import shutil
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -70,8 +70,10 @@ def latest_checkpoint(folder: Path) -> tuple[int, Path] | None:
     return (done[-1], root / f"round_{done[-1]:05d}") if done else None
 
 
-def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: RoundMeta) -> None:
-    """checkpoints/round_NNNNN/ in `folder` (the group's first), then the older ones removed."""
+def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: RoundMeta,
+               keep: Collection[int] = ()) -> None:
+    """checkpoints/round_NNNNN/ in `folder` (the group's first), then the older ones removed, except
+    the rounds in `keep` (the learning curve's snapshots)."""
     d = folder / CKPT_DIR / f"round_{meta.rounds_done:05d}"
     if d.exists():
         shutil.rmtree(d)  # a partial one (no meta.json) from a kill or a full disk
@@ -86,7 +88,7 @@ def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: Ro
     write_npz(d / "sumo_days.npz", **arrays)
     write_json(d / "meta.json", asdict(meta))
     for old in (folder / CKPT_DIR).glob("round_*"):
-        if old != d:
+        if old != d and int(old.name.split("_")[1]) not in keep:
             shutil.rmtree(old, ignore_errors=True)
 
 

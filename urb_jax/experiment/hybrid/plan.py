@@ -48,6 +48,10 @@ class HybridConfig:
     route_bias: bool = True  # correct the surrogate by SUMO's mean residual per (agent, route) driven
     route_bias_prior_days: float = 2.0  # shrinkage: residual x count / (count + prior days)
     reuse_identical_test_days: bool = True  # SUMO is deterministic: a repeated test day runs once
+    # Training days after which the round checkpoint is kept rather than replaced by the next one:
+    # snapshots of the learning curve, each evaluable later on the run's SUMO test days (a day count
+    # between rounds keeps the first round that reaches it; 0 keeps the start, the human phase's end).
+    keep_checkpoints_at: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         """Budgets and round sizes that cannot run are refused before any SUMO day."""
@@ -65,6 +69,9 @@ class HybridConfig:
         if self.seed_axis not in SEED_AXES:
             raise ConfigError(f"key 'seed_axis' is {self.seed_axis!r}. Fix: use one of "
                               f"{', '.join(SEED_AXES)}.")
+        if any(d < 0 for d in self.keep_checkpoints_at):
+            raise ConfigError(f"key 'keep_checkpoints_at' is {list(self.keep_checkpoints_at)}. Fix: list "
+                              "training-day counts >= 0.")
         if self.day_timeout_s <= 0 or self.route_bias_prior_days < 0:
             raise ConfigError("key 'day_timeout_s' must be > 0 and 'route_bias_prior_days' >= 0. "
                               "Fix: set them so.")
@@ -106,6 +113,12 @@ def plan_rounds(cfg: HybridConfig, mode: str, days_per_iter: int) -> RoundPlan:
     sur = iters * days_per_iter * cfg.num_envs
     sumo = cfg.sumo_days_per_round if mode != "surrogate" else 0
     return RoundPlan(max(1, math.ceil(cfg.train_days / max(sur + sumo, 1))), iters, sur, sumo)
+
+
+def kept_rounds(cfg: HybridConfig, plan: RoundPlan) -> frozenset[int]:
+    """The rounds whose checkpoints `keep_checkpoints_at` keeps: the first to reach each day count."""
+    per_round = plan.surrogate_days + plan.sumo_days
+    return frozenset(min(plan.n_rounds, math.ceil(d / per_round)) for d in cfg.keep_checkpoints_at)
 
 
 def learner_for(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, n_rounds: int,

@@ -35,6 +35,7 @@ from urb_jax.experiment.hybrid.plan import (
     AlgoConfig,
     HybridConfig,
     RoundPlan,
+    kept_rounds,
     learner_for,
     plan_rounds,
 )
@@ -251,7 +252,7 @@ class HybridTrainer:
         meta = RoundMeta(rounds_done, self.sumo_done, list(g.seeds), [f.name for f in g.folders],
                          [w.n_parts for w in self.writers], self.rounds_logs, g.plan.n_rounds,
                          round(self.elapsed(), 2))
-        save_round(g.folders[0], self.state._asdict(), self.samples, meta)
+        save_round(g.folders[0], self.state._asdict(), self.samples, meta, kept_rounds(g.cfg, g.plan))
 
     def set_params(self) -> None:
         """The training envs of every seed's runner get the seed's current surrogate parameters."""
