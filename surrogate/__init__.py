@@ -3,10 +3,14 @@
     static = build_static(scenario)            # numpy index arrays, once per scenario
     params = calibrate(scenario, sample)       # sample: SumoSample.from_days(choices, sumo_days)
     times = predict(params, static, choices)   # [B, N] ints or [B, N, K] probabilities -> minutes
-    params = refit(params, scenario, new_sample)
+    params = refit(params, scenario, new_sample, all_days=sample + new_sample)
+
+`calibrate` and `refit` are the training runs' own recipes: a gradient fit of the smooth model, then
+each (agent, route)'s mean residual over the SUMO days that drove it (`route_bias`); `uncalibrated`
+is the start before any SUMO day.
 """
 
-from urb_jax.surrogate.calibrate import FitConfig, SumoSample, calibrate, fit_params, refit
+from urb_jax.surrogate.calibrate import FitConfig, SumoSample, calibrate, fit_params, refit, uncalibrated
 from urb_jax.surrogate.model import (
     Static,
     SurrogateConfig,
@@ -19,5 +23,5 @@ from urb_jax.surrogate.model import (
 
 __all__ = [
     "FitConfig", "Static", "SumoSample", "SurrogateConfig", "build_static", "calibrate",
-    "fit_params", "init_params", "predict", "predict_jit", "refit", "route_times_seconds",
+    "fit_params", "init_params", "predict", "predict_jit", "refit", "route_times_seconds", "uncalibrated",
 ]

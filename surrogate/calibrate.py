@@ -75,6 +75,7 @@ class FitConfig:
 
 
 REFIT = FitConfig(steps=150, anchor=1e-2)
+ROUTE_BIAS_PRIOR_DAYS = 2.0  # route_bias() shrinkage: residual x count / (count + prior days)
 EDGE_KEYS = ("log_speed_e", "log_a_e", "log_junc_e")
 
 
@@ -109,6 +110,11 @@ def fit_params(params: Params, static: Static, sample: SumoSample, fit: FitConfi
 def without_bias(params: Params) -> Params:
     """The smooth model's parameters (the per-route residual is not fitted by gradient)."""
     return {k: v for k, v in params.items() if k != "route_bias"}
+
+
+def uncalibrated(static: Static) -> Params:
+    """The surrogate before any SUMO day: textbook parameters, no route residual (a trainer's start)."""
+    return {**init_params(static), "route_bias": jnp.zeros((static.n, static.k), jnp.float32)}
 
 
 def fit_with_bias(start: Params, static: Static, sub: SumoSample, fit: FitConfig, full: SumoSample,
@@ -162,16 +168,24 @@ def _run_fit(p0: Params, static: Static, data: dict[str, jax.Array], fit: FitCon
 def calibrate(
     scenario: Scenario, sumo_days: SumoSample, *, config: SurrogateConfig | None = None,
     fit: FitConfig | None = None, static: Static | None = None,
+    route_bias_prior_days: float | None = ROUTE_BIAS_PRIOR_DAYS,
 ) -> Params:
-    """Parameters fitted to SUMO days, starting from the textbook initial values."""
+    """Parameters fitted to SUMO days from the textbook start, then each (agent, route)'s residual on
+    the same days, as a training run calibrates its surrogate (`route_bias_prior_days` None: no
+    residual, the smooth model alone)."""
     static = static if static is not None else build_static(scenario, config or SurrogateConfig())
-    return fit_params(init_params(static), static, sumo_days, fit or FitConfig())
+    return fit_with_bias(uncalibrated(static), static, sumo_days, fit or FitConfig(), sumo_days,
+                         route_bias_prior_days)
 
 
 def refit(
     params: Params, scenario: Scenario, new_days: SumoSample, *, config: SurrogateConfig | None = None,
-    fit: FitConfig = REFIT, static: Static | None = None,
+    fit: FitConfig = REFIT, static: Static | None = None, all_days: SumoSample | None = None,
+    route_bias_prior_days: float | None = ROUTE_BIAS_PRIOR_DAYS,
 ) -> Params:
-    """Incremental update: warm start from `params`, fit the new days, stay near the previous fit."""
+    """Incremental update, as a training run's rounds refit: warm start from `params`, fit the new
+    days staying near the previous fit, then the route residual over `all_days` (default: the new
+    days; a trainer passes every SUMO day so far)."""
     static = static if static is not None else build_static(scenario, config or SurrogateConfig())
-    return fit_params(params, static, new_days, fit)
+    return fit_with_bias(params, static, new_days, fit, all_days if all_days is not None else new_days,
+                         route_bias_prior_days)

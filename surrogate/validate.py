@@ -113,7 +113,8 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     te = SumoSample.from_days(c_te, sumo_days(scn, c_te, vcfg.seed, workers=vcfg.workers))
     t_sumo = time.perf_counter() - t0
     t0 = time.perf_counter()
-    params = calibrate(scn, tr, config=config, fit=fit, static=static)
+    # the smooth model alone (no route residual): what the fidelity targets are stated for
+    params = calibrate(scn, tr, config=config, fit=fit, static=static, route_bias_prior_days=None)
     t_fit = time.perf_counter() - t0
     write_npz(out_dir / "params.npz", **{k: np.asarray(v) for k, v in params.items()})
 

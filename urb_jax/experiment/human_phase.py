@@ -125,11 +125,6 @@ def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor
                       np.stack([r.status == ARRIVED for r in results]), S, switch, means)
 
 
-def uncalibrated(static: Static) -> Params:
-    """The surrogate before calibration: textbook parameters, no route bias (the trainer's start)."""
-    return {**init_params(static), "route_bias": jnp.zeros((static.n, static.k), jnp.float32)}
-
-
 def calibrate(start: Params, static: Static, human: HumanPhase, cfg: HybridConfig) -> Params:
     """The surrogate fitted to the human phase's calibration days (`calib_steps` steps from `start`,
     then the route bias on the same days): what the hybrid trainer's round 0 trains on, and what an
@@ -188,6 +183,17 @@ def save_human_phase(folder: Path, human: HumanPhase) -> None:
     write_npz(folder / HUMAN_FILE, calib_choices=human.calib_choices, calib_times=human.calib_times,
               calib_arrived=human.calib_arrived, surrogate_means=human.surrogate_means, **switch,
               **{f"humans_{k}": np.asarray(v) for k, v in human.humans._asdict().items()})
+
+
+def saved_calibration_days(folder: Path) -> SumoSample:
+    """The calibration days a train run's human phase saved (none: an empty sample, e.g. a baseline
+    run or a `--mode sumo` run, which calibrates nothing)."""
+    path = folder / HUMAN_FILE
+    if not path.is_file():
+        return SumoSample(np.zeros((0, 0), np.int32), np.zeros((0, 0), np.float32), np.zeros((0, 0), bool))
+    z = np.load(path)
+    return SumoSample(z["calib_choices"].astype(np.int32), z["calib_times"].astype(np.float32),
+                      z["calib_arrived"].astype(bool))
 
 
 class ReplayHumanPhase:

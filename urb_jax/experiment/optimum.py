@@ -36,14 +36,15 @@ import pandas as pd
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.atomic import write_json
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment.human_phase import saved_calibration_days
 from urb_jax.experiment.protocol import PHASE_TEST
 from urb_jax.game.humans import aon_routes
 from urb_jax.game.rewards import behaviour_coefficients
 from urb_jax.reporting.day_export import recorded_day, run_config, scenario_of_run
 from urb_jax.reporting.records import read_records
 from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, InProcessExecutor
-from urb_jax.surrogate import SumoSample, build_static, init_params, predict
-from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias
+from urb_jax.surrogate import SumoSample, build_static, predict
+from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias, uncalibrated
 from urb_jax.surrogate.model import Static, predict_jit
 
 OBJECTIVES = ("cav", "all", "reward")
@@ -276,7 +277,7 @@ class Refiner:
         newest = np.arange(max(len(self.data) - size // 2, 0), len(self.data))
         rest = rng.choice(len(self.data), size=size - len(newest), replace=True)
         pick = np.concatenate([newest, rest])
-        sub = SumoSample(self.data.choices[pick], self.data.travel_time[pick], self.data.arrived[pick])
+        sub = self.data.days(pick)
         fit = dataclasses.replace(REFIT, steps=self.cfg.refit_steps)
         self.params = fit_with_bias(self.params, self.prob.static, sub, fit, self.data, self.cfg.bias_prior)
 
@@ -359,23 +360,16 @@ def recorded_sample(folder: Path, scn: Scenario) -> SumoSample:
     choices[day_row, pos] = rec["action"].to_numpy()
     times[day_row, pos] = rec["travel_time"].to_numpy()
     arrived[day_row, pos] = rec["status"].to_numpy() == ARRIVED
-    sample = SumoSample(choices, times, arrived)
-    hp = folder / "human_phase.npz"
-    if hp.is_file():
-        z = np.load(hp)
-        if len(z["calib_choices"]):
-            sample = SumoSample(z["calib_choices"].astype(np.int32), z["calib_times"].astype(np.float32),
-                                z["calib_arrived"].astype(bool)) + sample
-    return sample
+    sample, calib = SumoSample(choices, times, arrived), saved_calibration_days(folder)
+    return calib + sample if len(calib) else sample
 
 
 def fit_run_surrogate(static: Static, data: SumoSample, cfg: SearchConfig, steps: int = 600) -> Params:
     """The surrogate fitted from scratch to a run's SUMO days (the newest 64 for the smooth model,
     all of them for the per-route residual)."""
     pick = np.arange(max(len(data) - 64, 0), len(data))
-    sub = SumoSample(data.choices[pick], data.travel_time[pick], data.arrived[pick])
-    start = {**init_params(static), "route_bias": jnp.zeros((static.n, static.k), jnp.float32)}
-    return fit_with_bias(start, static, sub, FitConfig(steps=steps), data, cfg.bias_prior)
+    return fit_with_bias(uncalibrated(static), static, data.days(pick), FitConfig(steps=steps), data,
+                         cfg.bias_prior)
 
 
 def day_json(day: SumoDay) -> dict[str, Any]:

@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 
 from urb_jax.algorithms.baselines import FixedPolicy
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.experiment.human_phase import HumanPhase, calibrate, reuse_human_phase, uncalibrated
+from urb_jax.experiment.human_phase import HumanPhase, calibrate, reuse_human_phase
 from urb_jax.experiment.hybrid.trainer import routing_env_kwargs, surrogate_env
 from urb_jax.experiment.request import BaselineRequest, TrainRequest
 from urb_jax.experiment.run import RunResult, TrainSetup, load_setup, run_policy
@@ -28,6 +28,7 @@ from urb_jax.game.env import RoutingEnv
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.game.rollout import Policy
 from urb_jax.surrogate import build_static
+from urb_jax.surrogate.calibrate import uncalibrated
 
 
 class RunEnv(NamedTuple):

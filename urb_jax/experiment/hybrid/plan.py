@@ -15,6 +15,7 @@ from urb_jax.algorithms.registry import algorithm
 from urb_jax.core.configio import Loaded, Override, find_config, load_resolved
 from urb_jax.core.errors import ConfigError
 from urb_jax.game.env import RoutingEnv
+from urb_jax.surrogate.calibrate import ROUTE_BIAS_PRIOR_DAYS
 
 SEED_AXES = ("auto", "vmap", "map")  # how a group's seeds share one program (hybrid/fns.py)
 # The config of any algorithm of urb_jax.algorithms.registry.ALGORITHMS.
@@ -45,7 +46,7 @@ class HybridConfig:
     # above fns.MAP_SEEDS_PARAMS parameters, where vmap is 2-3x slower a seed (hybrid/fns.py)
     seed_axis: str = "auto"
     route_bias: bool = True  # correct the surrogate by SUMO's mean residual per (agent, route) driven
-    route_bias_prior_days: float = 2.0  # shrinkage: residual x count / (count + prior days)
+    route_bias_prior_days: float = ROUTE_BIAS_PRIOR_DAYS  # shrinkage: residual x count / (count + prior days)
     reuse_identical_test_days: bool = True  # SUMO is deterministic: a repeated test day runs once
     # Training days after which the round checkpoint is kept rather than replaced by the next one:
     # snapshots of the learning curve, each evaluable later on the run's SUMO test days (a day count

@@ -26,7 +26,7 @@ from urb_jax.city.scenario import Scenario
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
-from urb_jax.experiment.human_phase import HumanPhase, calibrate, uncalibrated
+from urb_jax.experiment.human_phase import HumanPhase, calibrate
 from urb_jax.experiment.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns, maps_seeds
 from urb_jax.experiment.hybrid.memory import check_fits
@@ -48,7 +48,7 @@ from urb_jax.reporting.records import DayRecord, RecordsWriter
 from urb_jax.sumo_bridge import DayExecutor, DayResult
 from urb_jax.sumo_bridge.memo import MemoExecutor
 from urb_jax.surrogate import SumoSample, build_static, predict
-from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias
+from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias, uncalibrated
 from urb_jax.surrogate.model import Static
 
 Row = dict[str, float]  # one seed's rounds.csv row
@@ -374,8 +374,7 @@ class HybridTrainer:
             sample = self.samples[i]
             rng = np.random.default_rng([seed, r, 0xF17])
             pick = rng.choice(len(sample), size=g.cfg.refit_days, replace=len(sample) < g.cfg.refit_days)
-            sub = SumoSample(sample.choices[pick], sample.travel_time[pick], sample.arrived[pick])
-            new_params.append(self.fit(_take(self.state.params, i), sub, refit_cfg, sample))
+            new_params.append(self.fit(_take(self.state.params, i), sample.days(pick), refit_cfg, sample))
         self.state = self.state._replace(params=_stack(new_params))
         self.set_params()
 
