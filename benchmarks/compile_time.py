@@ -40,6 +40,7 @@ def child(spec: dict) -> None:
     import jax.numpy as jnp
     import numpy as np
 
+    from urb_jax.experiment.request import TrainRequest
     from urb_jax.experiment.run import run_train
 
     counts: Counter = Counter()
@@ -54,9 +55,10 @@ def child(spec: dict) -> None:
     if spec["unrolled"]:
         _use_unrolled_levels(jax, jnp, np)
     t0 = time.perf_counter()
-    run_train(alg=spec["alg"], net=spec["net"], networks_dir=spec["networks_dir"], env_conf=spec["env_conf"],
-              train_days=spec["train_days"], results_dir=spec["results"], exp_id=spec["id"],
-              human_phase_from=spec["human"], progress=False)
+    run_train(TrainRequest(alg=spec["alg"], net=spec["net"], networks_dir=spec["networks_dir"],
+                           env_conf=spec["env_conf"], train_days=spec["train_days"],
+                           results_dir=spec["results"], exp_id=spec["id"], human_phase_from=spec["human"],
+                           progress=False))
     wall = time.perf_counter() - t0
     print(json.dumps({"compiles": counts[BACKEND] - counts[HIT], "hits": counts[HIT],
                       "compile_s": secs[BACKEND], "trace_s": sum(secs[e] for e in TRACE), "wall_s": wall}))

@@ -28,6 +28,7 @@ import compile_cache_run
 from compile_cache_run import IQL
 from fakeday import FakeExecutor
 
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
 from urb_jax.experiment.run import resume_train, run_train
 
 HYBRID = {**compile_cache_run.HYBRID, "train_days": 18}  # 3 rounds
@@ -41,11 +42,13 @@ def digest(folder: Path) -> str:
     return h.hexdigest()[:12]
 
 
-def train(out: Path, exp_id: str, alg: str, alg_conf: str, seeds: list[int], **kw):
+def train(out: Path, exp_id: str, alg: str, alg_conf: str, seeds: list[int], overrides: tuple[str, ...] = (),
+          stop_after_round: int | None = None):
     t0 = time.perf_counter()
-    results = run_train(alg=alg, exp_id=exp_id, results_dir=str(out), progress=False, task_conf="test",
-                        hybrid_conf=str(out / "hyb.json"), alg_conf=alg_conf, seeds=seeds,
-                        executor=FakeExecutor(), **kw)
+    req = TrainRequest(alg=alg, exp_id=exp_id, results_dir=str(out), progress=False, task_conf="test",
+                       hybrid_conf=str(out / "hyb.json"), alg_conf=alg_conf, seeds=tuple(seeds),
+                       overrides=overrides)
+    results = run_train(req, executor=FakeExecutor(), stop_after_round=stop_after_round)
     return results, time.perf_counter() - t0
 
 
@@ -53,7 +56,7 @@ def qmix_twice(out: Path) -> None:
     """The big learner's run twice: its seeds' records and metric files, byte-identical or not."""
     digests = []
     for exp_id in ("q1", "q2"):
-        results, wall = train(out, exp_id, "qmix", "config1", [0, 1], overrides=["task.ratio_machines=0.4"])
+        results, wall = train(out, exp_id, "qmix", "config1", [0, 1], overrides=("task.ratio_machines=0.4",))
         digests.append([digest(r.folder) for r in results])
         print(exp_id, digests[-1], f"{wall:.0f} s", flush=True)
     print("QMIX run twice byte-identical: " + ("yes" if digests[0] == digests[1] else "NO"))
@@ -74,11 +77,11 @@ def main(out: Path, only_qmix: bool = False) -> None:
     print(rows[-1], flush=True)
     train(out, "k", "iql", iql, [0], stop_after_round=1)
     t0 = time.perf_counter()
-    (k,) = resume_train("k", results_dir=str(out), progress=False, executor=FakeExecutor())
+    (k,) = resume_train(ResumeRequest("k", results_dir=str(out), progress=False), executor=FakeExecutor())
     resume_s = time.perf_counter() - t0
     rows.append(("killed and resumed", digest(a.folder), digest(k.folder), f"resume {resume_s:.0f} s"))
     print(rows[-1], flush=True)
-    qmix, wall_q = train(out, "q", "qmix", "config1", [0, 1], overrides=["task.ratio_machines=0.4"])
+    qmix, wall_q = train(out, "q", "qmix", "config1", [0, 1], overrides=("task.ratio_machines=0.4",))
     used = json.loads((qmix[0].folder / "exp_config.json").read_text())["seed_axis_used"]
     rows.append(("big learner's seeds", f"seed_axis_used {used}", digest(qmix[1].folder), f"{wall_q:.0f} s"))
     print("| check | first | second | wall |\n|---|---|---|---|")

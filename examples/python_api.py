@@ -36,8 +36,10 @@ print(f"surrogate: mean travel time {predicted.mean():.3f} min (SUMO {sumo.mean(
       f"mean |error| per agent-day {np.abs(predicted - sumo).mean():.3f} min")
 
 # 4. URB's full protocol with IQL, as small as it goes: 10 human days, 18 training days, 10 test days.
-(run,) = urb_jax.run_train(alg="iql", net="urb_grid", task_conf="test", env_conf="test", hybrid_conf="test",
-                           results_dir=str(results_dir), exp_id="api_example", overwrite=True, progress=False)
+request = urb_jax.TrainRequest(alg="iql", net="urb_grid", task_conf="test", env_conf="test",
+                               hybrid_conf="test", results_dir=str(results_dir), exp_id="api_example",
+                               overwrite=True, progress=False)
+(run,) = urb_jax.run_train(request)
 print(f"run folder {run.folder} ({run.wall_time_s:.0f} s)")
 
 # 5. Its BenchmarkMetrics row, recomputed from the run's records (what metrics/BenchmarkMetrics.csv holds).

@@ -14,6 +14,7 @@ import jax
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fakeday import FakeExecutor
 
+from urb_jax.experiment.request import TrainRequest
 from urb_jax.experiment.run import run_train
 
 HYBRID = {"train_days": 12, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
@@ -33,8 +34,9 @@ def main(out: Path) -> None:
     jax.monitoring.register_event_listener(lambda event, **_: events.update([event]))
     (out / "hyb.json").write_text(json.dumps(HYBRID))
     (out / "iql.json").write_text(json.dumps(IQL))
-    run_train(alg="iql", exp_id="run", results_dir=str(out), progress=False, task_conf="test",
-              hybrid_conf=str(out / "hyb.json"), alg_conf=str(out / "iql.json"), executor=FakeExecutor())
+    run_train(TrainRequest(alg="iql", exp_id="run", results_dir=str(out), progress=False, task_conf="test",
+                           hybrid_conf=str(out / "hyb.json"),
+                           alg_conf=str(out / "iql.json")), executor=FakeExecutor())
     (out / "compiles.json").write_text(json.dumps({"requests": events[REQUESTS], "hits": events[HITS]}))
 
 

@@ -46,9 +46,11 @@ def tiny_iql_reference(tiny_iql_confs, tmp_path_factory: pytest.TempPathFactory)
     this run; run once per test process (it is most of such a test's cost). Read it, never write."""
     from test_hybrid_loop import FakeExecutor
 
+    from urb_jax.experiment.request import TrainRequest
     from urb_jax.experiment.run import run_train
 
     ex = FakeExecutor()
-    (out,) = run_train(alg="iql", exp_id="ref", results_dir=str(tmp_path_factory.mktemp("tiny_iql_ref")),
-                       progress=False, executor=ex, **tiny_iql_confs)
+    (out,) = run_train(TrainRequest(alg="iql", exp_id="ref",
+                                    results_dir=str(tmp_path_factory.mktemp("tiny_iql_ref")), progress=False,
+                                    **tiny_iql_confs), executor=ex)
     return out, ex

@@ -4,6 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from urb_jax.experiment.request import BaselineRequest
 from urb_jax.experiment.run import run_baseline
 from urb_jax.reporting.records import read_records
 
@@ -13,7 +14,7 @@ pytestmark = pytest.mark.sumo
 def test_aon_baseline_on_sumo(tmp_path, grid_scenario, capsys):
     from urb_jax.sumo_bridge import run_day
 
-    out = run_baseline(model="aon", results_dir=str(tmp_path), progress=False,
+    out = run_baseline(BaselineRequest(model="aon", results_dir=str(tmp_path), progress=False),
                        task_overrides={"human_learning_episodes": 5, "training_eps": 2, "test_eps": 3})
     rec = read_records(out.folder)
     assert (out.folder / "sumo.log").exists()  # SUMO's messages are kept with the run

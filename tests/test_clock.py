@@ -14,6 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor
 
 from urb_jax.experiment.hybrid.clock import LINE_EVERY_S, IterationClock, chunk_len, fmt_duration, run_chunks
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
 
 
 class FakeTime:
@@ -104,9 +105,9 @@ def test_a_training_run_prints_its_estimate(tmp_path, capsys):
            "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400}
     (tmp_path / "hyb.json").write_text(json.dumps(hyb))
     (tmp_path / "iql.json").write_text(json.dumps(alg))
-    run_train(alg="iql", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"),
-              alg_conf=str(tmp_path / "iql.json"), results_dir=str(tmp_path / "r"), progress=False,
-              executor=FakeExecutor())
+    run_train(TrainRequest(alg="iql", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"),
+                           alg_conf=str(tmp_path / "iql.json"), results_dir=str(tmp_path / "r"),
+                           progress=False), executor=FakeExecutor())
     err = capsys.readouterr().err
     # 8 surrogate env-days a round over 2 envs of 2 days: 2 iterations a round, two chunks of one
     lines = [line for line in err.splitlines() if line.startswith("estimate: one surrogate iteration")]
@@ -139,8 +140,9 @@ def test_a_run_with_urbs_config1_gets_the_hybrid_hint(tmp_path, capsys, monkeypa
            "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
            "refit_days": 4, "refit_steps": 5}
     (tmp_path / "hyb.json").write_text(json.dumps(hyb))
-    run_train(alg="mappo", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"), alg_conf="config1",
-              results_dir=str(tmp_path / "r"), progress=False, executor=FakeExecutor(), stop_after_round=1)
+    run_train(TrainRequest(alg="mappo", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"),
+                           alg_conf="config1", results_dir=str(tmp_path / "r"),
+                           progress=False), executor=FakeExecutor(), stop_after_round=1)
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("estimate:")]
     assert len(lines) == 1 and "`--alg-conf hybrid` trains mappo" in lines[0]
 
@@ -181,9 +183,10 @@ def test_a_big_learner_is_timed_before_training(tmp_path, capsys, monkeypatch):
         return [line for line in err.splitlines() if line.startswith(("estimate", "memory"))]
 
     def run(name: str) -> list[str]:
-        run_train(alg="qmix", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"), seeds=[0, 1],
-                  alg_conf=str(tmp_path / "qmix.json"), results_dir=str(tmp_path / name), progress=False,
-                  executor=FakeExecutor(), stop_after_round=1)
+        req = TrainRequest(alg="qmix", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"), seeds=[0, 1],
+                           alg_conf=str(tmp_path / "qmix.json"), results_dir=str(tmp_path / name),
+                           progress=False)
+        run_train(req, executor=FakeExecutor(), stop_after_round=1)
         return said()
 
     plain = run("plain")
@@ -197,8 +200,8 @@ def test_a_big_learner_is_timed_before_training(tmp_path, capsys, monkeypatch):
         files = sorted(p.relative_to(a) for p in a.glob("records.parts/*"))
         assert len(files) == 2 and files == sorted(p.relative_to(b) for p in b.glob("records.parts/*"))
         assert all((a / f).read_bytes() == (b / f).read_bytes() for f in files)
-    resume_train("qmix_hybrid_urb_grid_test_s0", results_dir=str(tmp_path / "probed"), progress=False,
-                 executor=FakeExecutor())
+    resume_train(ResumeRequest("qmix_hybrid_urb_grid_test_s0", results_dir=str(tmp_path / "probed"),
+                               progress=False), executor=FakeExecutor())
     resumed = said()
     assert [line.split(":")[0] for line in resumed[:2]] == ["memory", probe_line]
     assert "the 1 round(s) left" in resumed[1]

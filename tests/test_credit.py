@@ -19,6 +19,7 @@ from test_hybrid_loop import FakeExecutor
 from urb_jax.commands.cli import main
 from urb_jax.core.configio import find_config
 from urb_jax.core.errors import ConfigError
+from urb_jax.experiment.request import TrainRequest
 from urb_jax.experiment.run import run_train
 from urb_jax.game.rewards import behaviour_coefficients, credit_rewards, externalities
 from urb_jax.reporting.records import read_records
@@ -108,8 +109,8 @@ def confs(tmp_path_factory):
 
 
 def test_hybrid_run_pays_cavs_their_credit(confs, tmp_path):
-    (out,) = run_train(alg="iql_star", exp_id="credit", results_dir=str(tmp_path), progress=False,
-                       executor=FakeExecutor(), **confs)
+    (out,) = run_train(TrainRequest(alg="iql_star", exp_id="credit", results_dir=str(tmp_path),
+                                    progress=False, **confs), executor=FakeExecutor())
     rec = read_records(out.folder)
     cav = rec[(rec["kind"] == "CAV") & (rec["phase"] != "human")]
     # cooperative credit: -(own SUMO time + the delay the CAV adds to the other CAVs), delay >= 0
@@ -123,8 +124,8 @@ def test_hybrid_run_pays_cavs_their_credit(confs, tmp_path):
 
 def test_credit_without_a_surrogate_is_refused(confs, tmp_path):
     with pytest.raises(ConfigError, match=r"reward_credit.*--mode sumo"):
-        run_train(alg="iql_star", exp_id="x", results_dir=str(tmp_path), progress=False,
-                  executor=FakeExecutor(), mode="sumo", **confs)
+        run_train(TrainRequest(alg="iql_star", exp_id="x", results_dir=str(tmp_path), progress=False,
+                               mode="sumo", **confs), executor=FakeExecutor())
     assert main(["baseline", "--model", "aon", "--task-conf", confs["task_conf"],
                  "--results-dir", str(tmp_path)]) == 2
     assert not any(tmp_path.iterdir())  # refused before any folder was created

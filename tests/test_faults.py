@@ -24,6 +24,7 @@ from urb_jax.core.interrupt import DiskFullError, InterruptedRunError, no_space
 from urb_jax.experiment import checkpoints
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.human_phase import JOURNAL_DIR
+from urb_jax.experiment.request import BaselineRequest, ResumeRequest, TrainRequest
 from urb_jax.experiment.run import resume_train, run_baseline, run_train
 from urb_jax.experiment.run_folder import machine
 
@@ -31,9 +32,9 @@ H = 10  # configs/task/test.json
 
 
 
-def _train(confs, tmp_path, exp_id, executor=None, **kw):  # noqa: F811
-    return run_train(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
-                     executor=executor or FakeExecutor(), **{**confs, **kw})
+def _train(confs, tmp_path, exp_id, executor=None, stop_after_round=None, **kw):  # noqa: F811
+    req = TrainRequest(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False, **{**confs, **kw})
+    return run_train(req, executor=executor or FakeExecutor(), stop_after_round=stop_after_round)
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +55,7 @@ def test_a_run_stopped_in_its_human_phase_resumes_to_the_same_results(confs, tmp
     assert json.loads((folder / "exp_config.json").read_text())["status"] == "running"
     assert 0 < len(list((folder / JOURNAL_DIR).rglob("*.npz"))) <= 5  # a repeated day is stored once
     ex = FakeExecutor()
-    (out,) = resume_train("k", results_dir=str(tmp_path), progress=False, executor=ex)
+    (out,) = resume_train(ResumeRequest("k", results_dir=str(tmp_path), progress=False), executor=ex)
     assert sum(len(b) for b, _ in ex.batches) <= reference["days"] - 5  # those 5 (and repeats) read back
     assert result_digests(out.folder) == reference["digest"]
     assert not (folder / JOURNAL_DIR).exists()  # the run's own journal goes once it is done
@@ -87,7 +88,8 @@ def test_a_full_disk_keeps_the_last_checkpoint_and_resumes(confs, tmp_path, monk
     monkeypatch.undo()
     folder = tmp_path / "k"
     assert latest_checkpoint(folder)[0] == 1  # the partial round_00002 (no meta.json) is skipped
-    (out,) = resume_train("k", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    (out,) = resume_train(ResumeRequest("k", results_dir=str(tmp_path), progress=False),
+                          executor=FakeExecutor())
     assert result_digests(out.folder) == reference["digest"]
 
 
@@ -129,7 +131,7 @@ def test_a_task_whose_metrics_cannot_exist_is_refused(confs, tmp_path, key, metr
     with pytest.raises(ConfigError, match=rf"key '{key}' is 0, but .*{metric}.*Fix: set it to 1 or more"):
         _train(confs, tmp_path / "results", "k", task_conf=task)
     with pytest.raises(ConfigError, match=rf"key '{key}' is 0"):
-        run_baseline(task_conf=task, results_dir=str(tmp_path / "results"), progress=False,
+        run_baseline(BaselineRequest(task_conf=task, results_dir=str(tmp_path / "results"), progress=False),
                      day_fn=lambda *a, **k: pytest.fail("no SUMO day"))
     assert not (tmp_path / "results").exists()
 
@@ -152,7 +154,8 @@ def test_resume_from_another_folder_finds_a_relative_task_config(confs, tmp_path
     args = json.loads((out.folder / "exp_config.json").read_text())["train_args"]
     assert args["task_conf"] == str(tmp_path / "a" / "task.json")  # recorded resolved
     monkeypatch.chdir(tmp_path)
-    (done,) = resume_train("k", results_dir=str(tmp_path / "r"), progress=False, executor=FakeExecutor())
+    (done,) = resume_train(ResumeRequest("k", results_dir=str(tmp_path / "r"), progress=False),
+                           executor=FakeExecutor())
     assert json.loads((done.folder / "exp_config.json").read_text())["status"] == "done"
 
 

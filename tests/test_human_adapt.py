@@ -23,6 +23,7 @@ from test_hybrid_loop import FakeExecutor
 from urb_jax.city.scenario import load_scenario
 from urb_jax.core.configio import find_config
 from urb_jax.experiment.hybrid.trainer import HybridTrainer
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
 from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.game.humans import HumanParams, HumanState, act, learn
 from urb_jax.reporting.records import read_records
@@ -66,8 +67,8 @@ def _train(confs, tmp_path, exp_id, executor, monkeypatch, **kw):
 
     monkeypatch.setattr(HybridTrainer, "test", spy_test)
     monkeypatch.setattr(HybridTrainer, "start", spy_start)
-    outs = run_train(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
-                     executor=executor, **confs, **kw)
+    outs = run_train(TrainRequest(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
+                                  **confs, **kw), executor=executor)
     batches = [len(b[0]) for b in executor.batches[days["first_batch"]:]]
     return outs, days, batches
 
@@ -146,8 +147,9 @@ def test_two_seeds_resume_like_uninterrupted(confs, tmp_path, two_seeds):
     """The population [S, 1] of two vmapped seeds survives a kill after round 1 exactly."""
     ref = two_seeds[0]
     kw = dict(alg="iql", results_dir=str(tmp_path), progress=False, seeds=[0, 1], **confs)
-    run_train(exp_id="killed", executor=FakeExecutor(), stop_after_round=1, **kw)
-    resumed = resume_train("killed_s0", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    run_train(TrainRequest(exp_id="killed", **kw), executor=FakeExecutor(), stop_after_round=1)
+    resumed = resume_train(ResumeRequest("killed_s0", results_dir=str(tmp_path), progress=False),
+                           executor=FakeExecutor())
     for a, b in zip(ref, resumed, strict=True):
         pd.testing.assert_frame_equal(read_records(a.folder), read_records(b.folder))
     assert not read_records(ref[0].folder).equals(read_records(ref[1].folder))  # the seeds differ

@@ -24,6 +24,7 @@ from urb_jax.core.progress import Progress
 from urb_jax.experiment.human_phase import run_human_phase, surrogate_human_days
 from urb_jax.experiment.hybrid.plan import HybridConfig
 from urb_jax.experiment.protocol import train_humans, train_humans_on_model
+from urb_jax.experiment.request import BaselineRequest, TrainRequest
 from urb_jax.experiment.run import run_baseline, run_train
 from urb_jax.game.config import TaskConfig
 from urb_jax.reporting.records import read_records
@@ -112,8 +113,8 @@ def fast_confs(confs, tmp_path_factory):  # noqa: F811
 def fast_run(fast_confs, tmp_path_factory):
     root = tmp_path_factory.mktemp("fast_run")
     ex = FakeExecutor()
-    (out,) = run_train(alg="iql", exp_id="src", results_dir=str(root), progress=False, executor=ex,
-                       **fast_confs)
+    (out,) = run_train(TrainRequest(alg="iql", exp_id="src", results_dir=str(root), progress=False,
+                                    **fast_confs), executor=ex)
     return root, out, ex
 
 
@@ -133,8 +134,8 @@ def test_reusing_a_fast_human_phase_replays_its_sumo_days(fast_run, fast_confs, 
     _, src, _ = fast_run
     shutil.copytree(src.folder, tmp_path / "src")
     ex = FakeExecutor()
-    (out,) = run_train(alg="iql", exp_id="again", results_dir=str(tmp_path), progress=False, executor=ex,
-                       human_phase_from="src", **fast_confs)
+    (out,) = run_train(TrainRequest(alg="iql", exp_id="again", results_dir=str(tmp_path), progress=False,
+                                    human_phase_from="src", **fast_confs), executor=ex)
     assert all(cav is not None for _, cav in ex.batches)  # no human or calibration day ran
     pd.testing.assert_frame_equal(read_records(out.folder), read_records(src.folder))
 
@@ -142,7 +143,8 @@ def test_reusing_a_fast_human_phase_replays_its_sumo_days(fast_run, fast_confs, 
 def test_a_baseline_refuses_to_replay_a_human_phase_that_began_on_the_surrogate(fast_run, fast_confs):
     root, _, _ = fast_run
     with pytest.raises(UrbJaxError, match="ran on the surrogate"):
-        run_baseline(model="aon", results_dir=str(root), exp_id="base", progress=False, day_fn=FakeDay(),
-                     task_conf=fast_confs["task_conf"], human_phase_from="src")
+        run_baseline(BaselineRequest(model="aon", results_dir=str(root), exp_id="base", progress=False,
+                                     task_conf=fast_confs["task_conf"],
+                                     human_phase_from="src"), day_fn=FakeDay())
     assert not (root / "base").exists()
 

@@ -15,6 +15,7 @@ from digests import result_digests
 from test_hybrid_loop import FakeExecutor
 
 from urb_jax.algorithms.registry import ALGORITHMS
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
 from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.reporting.records import read_records
 
@@ -46,13 +47,13 @@ def test_every_algorithm_runs_the_loop_and_resumes_to_the_same_bytes(alg, tmp_pa
     (tmp_path / "hyb.json").write_text(json.dumps(HYB))
     kw = dict(alg=alg, task_conf="test", alg_conf=str(tmp_path / "alg.json"),
               hybrid_conf=str(tmp_path / "hyb.json"), results_dir=str(tmp_path / "r"), progress=False)
-    (out,) = run_train(exp_id=alg, executor=FakeExecutor(), **kw)
+    (out,) = run_train(TrainRequest(exp_id=alg, **kw), executor=FakeExecutor())
     cfg = json.loads((out.folder / "exp_config.json").read_text())
     assert cfg["status"] == "done" and cfg["sumo_training_days"] >= 2 and cfg["rounds"] == 2
     assert np.isfinite(out.metrics["t_CAV"]) and np.isfinite(out.metrics["t_train"])
-    (stopped,) = run_train(exp_id="stopped", executor=FakeExecutor(), stop_after_round=1, **kw)
+    (stopped,) = run_train(TrainRequest(exp_id="stopped", **kw), executor=FakeExecutor(), stop_after_round=1)
     assert stopped.stopped == 1 and result_digests(stopped.folder) is None
-    (resumed,) = resume_train("stopped", results_dir=str(tmp_path / "r"), progress=False,
+    (resumed,) = resume_train(ResumeRequest("stopped", results_dir=str(tmp_path / "r"), progress=False),
                               executor=FakeExecutor())
     assert result_digests(resumed.folder) == result_digests(out.folder)
 
@@ -62,9 +63,9 @@ def test_real_sumo_pool_end_to_end(tmp_path):
     (tmp_path / "alg.json").write_text(json.dumps(TINY["iql"]))
     hyb = {**HYB, "sumo_workers": 2}
     (tmp_path / "hyb.json").write_text(json.dumps(hyb))
-    (out,) = run_train(alg="iql", task_conf="test", alg_conf=str(tmp_path / "alg.json"),
-                       hybrid_conf=str(tmp_path / "hyb.json"), results_dir=str(tmp_path / "r"), exp_id="real",
-                       progress=False)
+    (out,) = run_train(TrainRequest(alg="iql", task_conf="test", alg_conf=str(tmp_path / "alg.json"),
+                                    hybrid_conf=str(tmp_path / "hyb.json"), results_dir=str(tmp_path / "r"),
+                                    exp_id="real", progress=False))
     rec = read_records(out.folder)
     assert rec["sumo"].all() and rec["day"].max() == 10 + out.summary.sumo_training_days + 10
     assert (rec["status"] == 0).mean() > 0.99  # SUMO arrived trips

@@ -21,6 +21,7 @@ from urb_jax.core.interrupt import InterruptedRunError
 from urb_jax.core.paths import embedded_networks_dir
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.hybrid.trainer import HybridTrainer
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
 from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.reporting.records import read_records
 
@@ -49,9 +50,9 @@ def confs(tiny_iql_confs):
     return tiny_iql_confs
 
 
-def _train(confs, tmp_path, exp_id, executor=None, **kw):
-    return run_train(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
-                     executor=executor or FakeExecutor(), **confs, **kw)
+def _train(confs, tmp_path, exp_id, executor=None, stop_after_round=None, **kw):
+    req = TrainRequest(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False, **confs, **kw)
+    return run_train(req, executor=executor or FakeExecutor(), stop_after_round=stop_after_round)
 
 
 def test_loop_records_and_metric_provenance(tiny_iql_reference):
@@ -168,7 +169,7 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
     (out,) = _train(confs, tmp_path, "killed", stop_after_round=1)
     assert out.stopped == 1 and latest_checkpoint(out.folder)[0] == 1
     with pytest.raises(InterruptedRunError, match="Continue with: urb-jax train --resume"):
-        resume_train("killed", results_dir=str(tmp_path), progress=False,
+        resume_train(ResumeRequest("killed", results_dir=str(tmp_path), progress=False),
                      executor=FakeExecutor(fail_on_call=2))  # round 2 runs, round 3's SUMO batch dies
     assert latest_checkpoint(out.folder)[0] == 2
 
@@ -182,12 +183,14 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
 
     monkeypatch.setattr(HybridTrainer, "checkpoint", dying_checkpoint)
     with pytest.raises(InterruptedRunError, match="Continue with: urb-jax train --resume"):
-        resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+        resume_train(ResumeRequest("killed", results_dir=str(tmp_path), progress=False),
+                     executor=FakeExecutor())
     monkeypatch.setattr(HybridTrainer, "checkpoint", real_checkpoint)
     meta = json.loads((out.folder / "checkpoints" / "round_00002" / "meta.json").read_text())
     assert len(list((out.folder / "records.parts").glob("part-*"))) > meta["record_parts"][0]
 
-    (final,) = resume_train("killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    (final,) = resume_train(ResumeRequest("killed", results_dir=str(tmp_path), progress=False),
+                            executor=FakeExecutor())
     pd.testing.assert_frame_equal(_metrics(final.folder), _metrics(ref.folder))
     pd.testing.assert_frame_equal(read_records(final.folder), ref_rec)
     pd.testing.assert_frame_equal(pd.read_csv(final.folder / "rounds.csv").filter(like="time"),
@@ -227,10 +230,11 @@ def test_resume_finds_the_network_from_another_folder(confs, tmp_path, monkeypat
     agents.write_text("".join(agents.read_text().splitlines(keepends=True)[:-1]))  # one agent fewer
     monkeypatch.chdir(other)
     with pytest.raises(UrbJaxError, match="has 399 agents; the run used 400"):
-        resume_train("moved", results_dir=results, progress=False, executor=FakeExecutor(),
-                     networks_dir="nets")
+        resume_train(ResumeRequest("moved", results_dir=results, progress=False, networks_dir="nets"),
+                     executor=FakeExecutor())
     assert latest_checkpoint(out.folder)[0] == 1
-    (final,) = resume_train("moved", results_dir=results, progress=False, executor=FakeExecutor())
+    (final,) = resume_train(ResumeRequest("moved", results_dir=results, progress=False),
+                            executor=FakeExecutor())
     pd.testing.assert_frame_equal(read_records(final.folder), read_records(tiny_iql_reference[0].folder))
 
 

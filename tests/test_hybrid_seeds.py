@@ -17,15 +17,16 @@ from test_hybrid_loop import FakeExecutor, H, confs  # noqa: F401  (confs is a f
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError
 from urb_jax.experiment.checkpoints import latest_checkpoint
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
 from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.reporting.records import read_records
 
 P, ROUNDS = 2, 3
 
 
-def _train(confs, root, exp_id, executor, **kw):  # noqa: F811
-    return run_train(alg="iql", exp_id=exp_id, results_dir=str(root), progress=False, executor=executor,
-                     **confs, **kw)
+def _train(confs, root, exp_id, executor, stop_after_round=None, **kw):  # noqa: F811
+    req = TrainRequest(alg="iql", exp_id=exp_id, results_dir=str(root), progress=False, **confs, **kw)
+    return run_train(req, executor=executor, stop_after_round=stop_after_round)
 
 
 def _metrics(folder):
@@ -140,7 +141,8 @@ def test_a_run_resumes_with_the_seed_axis_it_started_with(confs, tmp_path, monke
         config = json.loads((out.folder / "exp_config.json").read_text())
         del config["hybrid_seed_axis"]
         (out.folder / "exp_config.json").write_text(json.dumps(config))
-    resumed = resume_train("old_s0", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    resumed = resume_train(ResumeRequest("old_s0", results_dir=str(tmp_path), progress=False),
+                           executor=FakeExecutor())
     fresh = _train(confs, tmp_path, "new", FakeExecutor(), seeds=[0, 1])
     assert [json.loads((o.folder / "exp_config.json").read_text())["seed_axis_used"]
             for o in resumed + fresh] == ["vmap", "vmap", "map", "map"]
@@ -161,7 +163,7 @@ def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa:
     meta = json.loads((lead / "checkpoints" / "round_00001" / "meta.json").read_text())
     assert meta["seeds"] == [0, 1] and len(meta["record_parts"]) == 2
     ex = FakeExecutor()
-    finals = resume_train("pair_s1", results_dir=str(tmp_path), progress=False, executor=ex)
+    finals = resume_train(ResumeRequest("pair_s1", results_dir=str(tmp_path), progress=False), executor=ex)
     assert [len(b) for b, _ in ex.batches] == [2 * P] * (ROUNDS - 1 + 10 // P) + [1]  # rounds 2-3, test, AON
     for final, ref in zip(finals, pair["outs"], strict=True):
         assert final.folder.name == ref.folder.name

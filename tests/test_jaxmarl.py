@@ -13,6 +13,7 @@ import pytest
 from fakeday import FakeDay
 
 from urb_jax.algorithms.baselines import FixedPolicy
+from urb_jax.experiment.request import BaselineRequest
 from urb_jax.experiment.run import run_baseline, run_policy
 from urb_jax.game.env import RoutingEnv
 from urb_jax.game.humans import aon_routes
@@ -166,10 +167,10 @@ def test_an_outside_policy_runs_urbs_test_days(tmp_path):
         shapes.append(obs.shape)
         return aon if idx is None else aon[idx]
 
-    ours = run_policy(FixedPolicy(policy, "aon_fn"), results_dir=str(tmp_path), progress=False,
-                      day_fn=FakeDay(), task_overrides=TINY)
-    base = run_baseline(model="aon", results_dir=str(tmp_path), progress=False, day_fn=FakeDay(),
-                        task_overrides=TINY)
+    req = BaselineRequest(results_dir=str(tmp_path), progress=False)
+    ours = run_policy(FixedPolicy(policy, "aon_fn"), req, day_fn=FakeDay(), task_overrides=TINY)
+    base = run_baseline(BaselineRequest(model="aon", results_dir=str(tmp_path), progress=False),
+                        day_fn=FakeDay(), task_overrides=TINY)
     assert ours.folder.name == "aon_fn_urb_grid_config1_s42"
     pd.testing.assert_frame_equal(read_records(ours.folder), read_records(base.folder))
     np.testing.assert_equal(ours.metrics, base.metrics)  # NaN (no training day) equal too

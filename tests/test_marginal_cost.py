@@ -18,6 +18,7 @@ from test_hybrid_loop import FakeExecutor
 
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import ConfigError
+from urb_jax.experiment.request import TrainRequest
 from urb_jax.experiment.run import run_train
 from urb_jax.game.config import TaskConfig, load_task
 from urb_jax.game.rewards import behaviour_coefficients, cav_rewards, externalities, marginal_cost_rewards
@@ -60,8 +61,8 @@ def confs(tmp_path_factory):
 
 
 def test_hybrid_run_charges_cavs_their_marginal_cost(confs, tmp_path):
-    (out,) = run_train(alg="iql_star", exp_id="mc", results_dir=str(tmp_path), progress=False,
-                       executor=FakeExecutor(), **confs)
+    (out,) = run_train(TrainRequest(alg="iql_star", exp_id="mc", results_dir=str(tmp_path), progress=False,
+                                    **confs), executor=FakeExecutor())
     rec = read_records(out.folder)
     cav = rec[(rec["kind"] == "CAV") & (rec["phase"] != "human")]
     # selfish with beta 2: -(own SUMO time) - 2 x (the delay the surrogate says the trip adds), >= 0
@@ -73,8 +74,8 @@ def test_hybrid_run_charges_cavs_their_marginal_cost(confs, tmp_path):
 
 def test_marginal_cost_without_a_surrogate_is_refused(confs, tmp_path):
     with pytest.raises(ConfigError, match=r"marginal_cost_beta.*--mode sumo"):
-        run_train(alg="iql_star", exp_id="x", results_dir=str(tmp_path), progress=False,
-                  executor=FakeExecutor(), mode="sumo", **confs)
+        run_train(TrainRequest(alg="iql_star", exp_id="x", results_dir=str(tmp_path), progress=False,
+                               mode="sumo", **confs), executor=FakeExecutor())
     assert main(["baseline", "--model", "aon", "--task-conf", confs["task_conf"],
                  "--results-dir", str(tmp_path)]) == 2
     assert not any(tmp_path.iterdir())

@@ -16,6 +16,7 @@ from test_hybrid_loop import FakeExecutor
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.hybrid import memory
+from urb_jax.experiment.request import TrainRequest
 
 MB = 1024**2
 
@@ -62,8 +63,9 @@ def test_a_run_that_would_not_fit_stops_before_training(tmp_path, monkeypatch):
            "refit_days": 4, "refit_steps": 5}
     (tmp_path / "hyb.json").write_text(json.dumps(hyb))
     with pytest.raises(UrbJaxError, match=r"and this machine has 0\.0 GB available"):
-        run_train(alg="iql", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"), seeds=[0, 1],
-                  results_dir=str(tmp_path / "r"), progress=False, executor=FakeExecutor())
+        run_train(TrainRequest(alg="iql", task_conf="test", hybrid_conf=str(tmp_path / "hyb.json"),
+                               seeds=[0, 1], results_dir=str(tmp_path / "r"), progress=False),
+                  executor=FakeExecutor())
     folders = sorted((tmp_path / "r").glob("iql_*"))
     assert folders and all(not (f / "checkpoints").exists() for f in folders)  # no training round ran
     assert (folders[0] / "human_phase.npz").is_file()  # what the error says --human-phase-from reuses

@@ -28,6 +28,7 @@ from urb_jax.experiment.optimum import (
     run_references,
     single_moves,
 )
+from urb_jax.experiment.request import TrainRequest
 from urb_jax.experiment.run import run_train
 from urb_jax.game.humans import aon_routes
 from urb_jax.game.mutation import draw_cavs
@@ -110,8 +111,9 @@ def test_references_of_a_run_are_sumo_days(tmp_path):
         "train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
         "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
         "refit_days": 4, "refit_steps": 5}))
-    (out,) = run_train(alg="iql_star", exp_id="run", results_dir=str(tmp_path), progress=False,
-                       executor=FakeExecutor(), task_conf="test", hybrid_conf=str(d / "hyb.json"))
+    (out,) = run_train(TrainRequest(alg="iql_star", exp_id="run", results_dir=str(tmp_path), progress=False,
+                                    task_conf="test",
+                                    hybrid_conf=str(d / "hyb.json")), executor=FakeExecutor())
     cfg = SearchConfig(relax_steps=50, sumo_rounds=3, refit_steps=5)
     ref = run_references(out.folder, cfg=cfg, executor=FakeExecutor(), log=lambda _: None)
     assert json.loads((out.folder / "optimum.json").read_text()) == json.loads(json.dumps(ref))

@@ -4,6 +4,7 @@ exactly like the file's own keys; recorded in exp_config.json; honoured by --dry
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -13,13 +14,12 @@ from urb_jax.commands import cli
 from urb_jax.core.configio import from_dict, in_section, parse_overrides, read_json
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment import run
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
 from urb_jax.experiment.urb_configs import OVERRIDES_KEY, TRAIN_SECTIONS
 from urb_jax.game.config import TaskConfig, load_task
 
 URB_CONFIG = Path(__file__).resolve().parents[1].parent / "shared" / "urb" / "config"
-ARGS = {"alg": "iql", "net": "urb_grid", "task_conf": "config1", "alg_conf": "config1", "env_conf": "config1",
-        "hybrid_conf": "default", "env_seed": 42, "mode": "hybrid", "networks_dir": None,
-        "train_days": None, "drop_unroutable": False}
+REQUEST = TrainRequest(net="urb_grid")
 
 
 def test_values_are_json_and_bare_words_text() -> None:
@@ -98,25 +98,27 @@ def test_dry_run_shows_the_overridden_values(tmp_path, capsys) -> None:
 
 
 def test_exp_config_records_the_overrides_as_given_and_resolved() -> None:
-    args = {**ARGS, "overrides": ["alg.lr=1e-3", "alg.policy_network_depth=3", "hybrid.num_envs=8",
-                                  "task.human_learning_episodes=100"]}
-    setup = run.load_setup(args)
+    given = ("alg.lr=1e-3", "alg.policy_network_depth=3", "hybrid.num_envs=8",
+             "task.human_learning_episodes=100")
+    req = dataclasses.replace(REQUEST, overrides=given)
+    setup = run.load_setup(req)
     assert setup.alg_config.lr == 0.001 and setup.alg_config.mlp_depth == 3
     assert setup.hyb.num_envs == 8 and setup.task.human_learning_episodes == 100
-    config = run._train_config(setup, args, None)
+    config = run._train_config(setup, req)
     assert config[OVERRIDES_KEY] == {
-        "given": args["overrides"],
+        "given": list(given),
         "resolved": {"alg": {"lr": 0.001, "mlp_depth": 3}, "hybrid": {"num_envs": 8},
                      "task": {"human_learning_episodes": 100}}}
     assert config["human_days"] == 100 and config["hybrid_num_envs"] == 8
     json.dumps(config)
-    assert run._train_config(run.load_setup(ARGS), ARGS, None)[OVERRIDES_KEY] == {"given": [], "resolved": {}}
+    assert run._train_config(run.load_setup(REQUEST), REQUEST)[OVERRIDES_KEY] == {"given": [], "resolved": {}}
 
 
 def _recorded_run(results: Path, overrides: list[str] | None) -> None:
     folder = results / "r"
     folder.mkdir(parents=True)
-    args = {**ARGS, "seed": 0, "executor": "pool", "ray_address": None}
+    args = REQUEST.record(0)
+    args.pop("overrides")
     if overrides is not None:  # None: a run recorded before --set existed
         args["overrides"] = overrides
     (folder / "exp_config.json").write_text(json.dumps({"train_args": args, "group": ["r"],
@@ -137,11 +139,11 @@ def test_resume_reapplies_the_recorded_overrides(tmp_path, monkeypatch) -> None:
     _recorded_run(tmp_path / "a", ["alg.lr=1e-3", "hybrid.num_envs=8"])
     for given in (None, ["alg.lr=0.001", "hybrid.num_envs=8"]):  # the same overrides, however spelled
         with pytest.raises(ConfigError, match="stop here"):
-            run.resume_train("r", results_dir=str(tmp_path / "a"), overrides=given)
+            run.resume_train(ResumeRequest("r", results_dir=str(tmp_path / "a"), overrides=given))
         assert seen[-1].alg_config.lr == 0.001 and seen[-1].hyb.num_envs == 8
     _recorded_run(tmp_path / "b", None)
     with pytest.raises(ConfigError, match="stop here"):
-        run.resume_train("r", results_dir=str(tmp_path / "b"))
+        run.resume_train(ResumeRequest("r", results_dir=str(tmp_path / "b")))
     assert seen[-1].hyb.num_envs == 16  # configs/hybrid/default.json
 
 

@@ -16,6 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_hybrid_loop import FakeExecutor, tiny_iql_run
 
 from urb_jax.commands import cli
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
 from urb_jax.experiment.round_log import round_log
 from urb_jax.experiment.run import resume_train, run_train
 
@@ -29,9 +30,9 @@ def confs(tmp_path_factory):
     return tiny_iql_run(tmp_path_factory.mktemp("confs"))
 
 
-def _train(confs, tmp_path, exp_id, **kw):
-    return run_train(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False,
-                     executor=FakeExecutor(), **confs, **kw)
+def _train(confs, tmp_path, exp_id, stop_after_round=None, **kw):
+    req = TrainRequest(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False, **confs, **kw)
+    return run_train(req, executor=FakeExecutor(), stop_after_round=stop_after_round)
 
 
 def _scalars(folder: Path) -> dict[str, list[tuple[int, float]]]:
@@ -66,7 +67,8 @@ def test_a_resumed_run_shows_each_round_once(confs, tmp_path):
     run's events, the restored rounds are written again, and the scalars equal rounds.csv."""
     (killed,) = _train(confs, tmp_path, "tb_killed", log="tensorboard", stop_after_round=2)
     assert [s for s, _ in _scalars(killed.folder)["rounds/sur_loss"]] == [1, 2]
-    (final,) = resume_train("tb_killed", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    (final,) = resume_train(ResumeRequest("tb_killed", results_dir=str(tmp_path), progress=False),
+                            executor=FakeExecutor())
     assert len(list((final.folder / "tensorboard").iterdir())) == 2  # the killed run's file and the resume's
     _assert_scalars_are_rounds_csv(final.folder)
 

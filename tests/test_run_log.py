@@ -19,6 +19,7 @@ from urb_jax.city.routes import RouteParams
 from urb_jax.city.scenario import load_scenario
 from urb_jax.core import atomic
 from urb_jax.core.paths import cache_dir
+from urb_jax.experiment.request import BaselineRequest
 from urb_jax.experiment.run import run_baseline
 from urb_jax.experiment.run_log import RUN_LOG, log_run_to, run_log
 from urb_jax.game.config import load_env_config
@@ -62,8 +63,9 @@ def test_a_corrupt_scenario_cache_is_rebuilt_with_one_warning_in_the_run_log(tmp
     monkeypatch.setenv("URB_JAX_CACHE", str(tmp_path / "cache"))
     entry = _corrupt_scenario_cache()
     with caplog.at_level(logging.WARNING, logger="urb_jax"):
-        out = run_baseline(model="aon", task_conf="config1", results_dir=str(tmp_path / "results"),
-                           progress=False, day_fn=FakeDay(), task_overrides=TINY)
+        out = run_baseline(BaselineRequest(model="aon", task_conf="config1",
+                                           results_dir=str(tmp_path / "results"),
+                                           progress=False), day_fn=FakeDay(), task_overrides=TINY)
     warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert len(warnings) == 1 and str(entry) in warnings[0] and "rebuilding it" in warnings[0]
     (line,) = (out.folder / RUN_LOG).read_text().splitlines()

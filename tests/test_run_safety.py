@@ -18,6 +18,7 @@ from test_hybrid_loop import FakeExecutor, _train, confs  # noqa: F401  (module 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment import run as run_module
 from urb_jax.experiment import run_folder
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
 from urb_jax.experiment.run import resume_train
 from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir
 from urb_jax.reporting import records as records_module
@@ -53,10 +54,11 @@ def test_kill_at_every_instant_of_the_finish_resumes_identically(confs, tmp_path
     assert (folder / "records.parts").is_dir()  # the parts outlive every instant before done
     if instant == "after_done":
         with pytest.raises(UrbJaxError, match="already complete"):
-            resume_train("k", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+            resume_train(ResumeRequest("k", results_dir=str(tmp_path), progress=False),
+                         executor=FakeExecutor())
         assert not (folder / "records.parts").exists()  # the interrupted last step, finished
     else:
-        resume_train("k", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+        resume_train(ResumeRequest("k", results_dir=str(tmp_path), progress=False), executor=FakeExecutor())
     assert json.loads((folder / "exp_config.json").read_text())["status"] == "done"
     assert result_digests(folder) == want
     assert not (folder / "records.parts").exists()
@@ -124,7 +126,7 @@ def test_one_writer_per_run_folder(tmp_path):
 def test_resume_of_an_unknown_id(tmp_path):
     """(A run without a checkpoint now resumes from its start: tests/test_faults.py.)"""
     with pytest.raises(UrbJaxError, match="no urb-jax run 'nope' here"):
-        resume_train("nope", results_dir=str(tmp_path), progress=False)
+        resume_train(ResumeRequest("nope", results_dir=str(tmp_path), progress=False))
 
 
 @pytest.mark.parametrize("days", [0, -5])
@@ -133,7 +135,7 @@ def test_train_days_zero_or_negative_is_refused(tmp_path, days):
     from urb_jax.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match=rf"--train-days {days}: .*Fix: pass --train-days 1 or more"):
-        run_module.run_train(train_days=days, results_dir=str(tmp_path), progress=False,
+        run_module.run_train(TrainRequest(train_days=days, results_dir=str(tmp_path), progress=False),
                              executor=FakeExecutor())
     assert not any(tmp_path.iterdir())  # refused before any folder or SUMO day
 
@@ -175,7 +177,8 @@ def test_a_run_killed_outright_keeps_its_time_up_to_its_last_checkpoint(confs, t
     meta = json.loads((folder / "checkpoints" / "round_00001" / "meta.json").read_text())
     (row,) = meta["rounds"][0]  # round 1 was checkpointed: its time and the human phase's are in
     assert meta["wall_s"] >= config["human_phase_s"] + row["surrogate_s"] + row["sumo_s"]
-    (out,) = resume_train("k", results_dir=str(tmp_path), progress=False, executor=FakeExecutor())
+    (out,) = resume_train(ResumeRequest("k", results_dir=str(tmp_path), progress=False),
+                          executor=FakeExecutor())
     done = json.loads((folder / "exp_config.json").read_text())
     assert done["status"] == "done" and done["wall_time_s"] == round(out.wall_time_s, 2)
     assert out.wall_time_s > meta["wall_s"]

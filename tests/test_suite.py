@@ -14,6 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fakeday import FakeDay
 from test_hybrid_loop import FakeExecutor
 
+from urb_jax.experiment.request import BaselineRequest, ResumeRequest
 from urb_jax.experiment.run import run_baseline
 from urb_jax.experiment.suite import SuiteRun, run_progress, run_suite, status, write_report
 from urb_jax.reporting.records import read_records
@@ -55,8 +56,9 @@ def test_suite_resumes_skips_and_reports(tmp_path):
         pd.testing.assert_frame_equal(read_records(a), read_records(b))
     # the baseline replayed the train run's human phase instead of simulating it, to the same records
     assert json.loads((results / "aon" / "exp_config.json").read_text())["human_phase_from"] == "iqls_s0"
-    alone = run_baseline(model="aon", task_conf="test", day_fn=FakeDay(), exp_id="aon",
-                         results_dir=str(tmp_path / "alone"), progress=False)
+    alone = run_baseline(BaselineRequest(model="aon", task_conf="test", exp_id="aon",
+                                         results_dir=str(tmp_path / "alone"),
+                                         progress=False), day_fn=FakeDay())
     pd.testing.assert_frame_equal(read_records(alone.folder), read_records(results / "aon"))
     # a third time: everything finished, nothing simulated
     ex, day = FakeExecutor(), FakeDay()
@@ -274,9 +276,11 @@ def test_resume_finishes_every_seed_group_of_the_run(tmp_path):
                 for s in (0, 1)] == ["done", "running"]
     run_suite(_runs(conf, FakeExecutor(), FakeDay())[:1], tmp_path / "suite", progress=False,
               log=lambda _: None)
-    resume_train("iqls_s0", results_dir=str(tmp_path / "by_id"), progress=False, executor=FakeExecutor())
+    resume_train(ResumeRequest("iqls_s0", results_dir=str(tmp_path / "by_id"), progress=False),
+                 executor=FakeExecutor())
     for results in (tmp_path / "suite", tmp_path / "by_id"):
         for a in ref:  # every seed finished, with the uninterrupted run's records
             pd.testing.assert_frame_equal(read_records(a), read_records(results / a.name))
         with pytest.raises(Exception, match="already complete"):
-            resume_train("iqls_s1", results_dir=str(results), progress=False, executor=FakeExecutor())
+            resume_train(ResumeRequest("iqls_s1", results_dir=str(results), progress=False),
+                         executor=FakeExecutor())

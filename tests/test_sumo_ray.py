@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.experiment.request import ResumeRequest
 from urb_jax.sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -250,7 +251,7 @@ def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypat
     monkeypatch.setattr(run, "load_setup", lambda args: run.TrainSetup(scn, *(None,) * 7))
     monkeypatch.setattr(run, "make_executor", fake_executor)
     with pytest.raises(StopError):
-        run.resume_train("a", results_dir=str(tmp_path), progress=False)
+        run.resume_train(ResumeRequest("a", results_dir=str(tmp_path), progress=False))
     with pytest.raises(StopError):
-        run.resume_train("b", results_dir=str(tmp_path), progress=False, executor_kind="pool")
+        run.resume_train(ResumeRequest("b", results_dir=str(tmp_path), progress=False, executor="pool"))
     assert asked == [("ray", "ray://head:10001"), ("pool", "ray://head:10001")]

@@ -19,6 +19,7 @@ from urb_jax.city.scenario import load_scenario
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import NetworkError
 from urb_jax.core.paths import cache_dir, embedded_networks_dir
+from urb_jax.experiment.request import BaselineRequest
 from urb_jax.experiment.run import run_baseline
 from urb_jax.reporting.day_export import scenario_of_run
 
@@ -103,8 +104,9 @@ def test_cache_keys_differ_with_the_choice_where_it_matters(broken_grid, tmp_pat
 
 def test_baseline_records_dropped_agents_in_exp_config(broken_grid, tmp_path, caplog):
     expected = _unroutable_ids(broken_grid)
-    out = run_baseline(model="aon", net=str(broken_grid), results_dir=str(tmp_path / "res"), progress=False,
-                       day_fn=FakeDay(), task_overrides=TINY, drop_unroutable=True)
+    out = run_baseline(BaselineRequest(model="aon", net=str(broken_grid), results_dir=str(tmp_path / "res"),
+                                       progress=False,
+                                       drop_unroutable=True), day_fn=FakeDay(), task_overrides=TINY)
     cfg = json.loads((out.folder / "exp_config.json").read_text())
     assert cfg["drop_unroutable"] is True
     assert cfg["dropped_unroutable_agents"] == {"count": len(expected), "ids": expected}

@@ -16,6 +16,7 @@ import pytest
 from urb_jax.commands import cli
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment import run
+from urb_jax.experiment.request import BaselineRequest, TrainRequest
 from urb_jax.experiment.urb_configs import CONFIG_ALIASES_KEY, load_urb_file
 
 URB = Path(__file__).resolve().parents[1].parent / "shared" / "urb"
@@ -149,11 +150,10 @@ def test_train_run_records_config_aliases() -> None:
     """exp_config.json's config_aliases: URB's keys as given and what they set (no SUMO day)."""
     if not CONFIG.is_dir():
         pytest.skip(NO_URB)
-    args = {"alg": "iql", "net": "urb_grid", "task_conf": str(CONFIG / "task_config/config1.json"),
-            "alg_conf": str(CONFIG / "algo_config/iql_torchrl/config1.json"),
-            "env_conf": str(CONFIG / "env_config/config1.json"), "hybrid_conf": "default", "env_seed": 42,
-            "mode": "hybrid", "networks_dir": None, "train_days": None, "drop_unroutable": False}
-    config = run._train_config(run.load_setup(args), args, None)
+    req = TrainRequest(alg="iql", net="urb_grid", task_conf=str(CONFIG / "task_config/config1.json"),
+                       alg_conf=str(CONFIG / "algo_config/iql_torchrl/config1.json"),
+                       env_conf=str(CONFIG / "env_config/config1.json"))
+    config = run._train_config(run.load_setup(req), req)
     alg = config[CONFIG_ALIASES_KEY]["alg"]
     assert alg["aliases"]["eps"] == "target_eps" and alg["given"]["eps"] == 0.99
     assert alg["aliases"]["policy_network_depth"] == "mlp_depth" and alg["given"]["policy_network_depth"] == 4
@@ -220,7 +220,8 @@ def test_baseline_alg_conf_sets_training_days(tmp_path) -> None:
     conf = tmp_path / "algo_config" / "baseline" / "c.json"
     conf.parent.mkdir(parents=True)
     conf.write_text(json.dumps({"training_eps": 7}))
-    loaded, task_keys = run._baseline_configs("config1", "config1", str(conf), None, None)
+    loaded, task_keys = run._baseline_configs(BaselineRequest(alg_conf=str(conf)), None)
     assert task_keys == {"training_eps": 7} and loaded["alg"].config.training_eps == 7
-    _, task_keys = run._baseline_configs("config1", "config1", str(conf), ["alg.training_eps=9"], None)
+    _, task_keys = run._baseline_configs(BaselineRequest(alg_conf=str(conf), overrides=["alg.training_eps=9"]),
+                                         None)
     assert task_keys == {"training_eps": 9}

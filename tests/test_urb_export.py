@@ -24,6 +24,7 @@ from fakeday import FakeDay
 from urb_jax.algorithms.registry import ALGORITHMS, URB_ALIASES, canonical, urb_algorithm
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import ConfigError, UrbJaxError
+from urb_jax.experiment.request import BaselineRequest
 from urb_jax.experiment.run import run_baseline
 from urb_jax.reporting.leaderboard import aggregate, collect
 from urb_jax.reporting.records import read_records
@@ -55,8 +56,10 @@ def runs(tmp_path_factory):
     it: `algorithm` our id, `script` "urb-jax train", the task's training_eps 200 while the
     records hold 4 training days (what URB's slicing used to find no test days with)."""
     root = tmp_path_factory.mktemp("urb-export")
-    out = run_baseline(model="random", task_conf="config1", results_dir=str(root / "results"), exp_id="rnd",
-                       progress=False, day_fn=FakeDay(),
+    out = run_baseline(BaselineRequest(model="random", task_conf="config1",
+                                       results_dir=str(root / "results"), exp_id="rnd",
+                                       progress=False),
+                       day_fn=FakeDay(),
                        task_overrides={"human_learning_episodes": H, "training_eps": T, "test_eps": E})
     old = root / "results" / "old_iql"
     shutil.copytree(out.folder, old)

@@ -7,7 +7,7 @@ The entry points a script needs (docs/api.md):
     days = urb_jax.run_days(scn, choices)                          # SUMO days [B, N], this process
     params = urb_jax.calibrate(scn, urb_jax.SumoSample.from_days(choices, days))
     times = urb_jax.predict(params, urb_jax.build_static(scn), choices)  # surrogate, minutes
-    (run,) = urb_jax.run_train(alg="iql", task_conf="test")        # URB's full protocol
+    (run,) = urb_jax.run_train(urb_jax.TrainRequest(task_conf="test"))  # URB's full protocol
     row = urb_jax.run_metrics(run.folder)                          # the BenchmarkMetrics row
 
 They load on first use (module `__getattr__`), so `import urb_jax` imports neither JAX nor SUMO;
@@ -39,6 +39,9 @@ _EXPORTS = {
     "calibrate": "urb_jax.surrogate.calibrate",
     "build_static": "urb_jax.surrogate.model",
     "predict": "urb_jax.surrogate.model",
+    "TrainRequest": "urb_jax.experiment.request",
+    "ResumeRequest": "urb_jax.experiment.request",
+    "BaselineRequest": "urb_jax.experiment.request",
     "run_train": "urb_jax.experiment.run",
     "resume_train": "urb_jax.experiment.run",
     "run_baseline": "urb_jax.experiment.run",
@@ -49,7 +52,8 @@ _EXPORTS = {
 }
 
 __all__ = [  # the same names as _EXPORTS (tests/test_api.py), spelled out for linters and editors
-    "DayResult", "RouteParams", "RunResult", "Scenario", "SumoSample", "__version__", "build_static",
+    "BaselineRequest", "DayResult", "ResumeRequest", "RouteParams", "RunResult", "Scenario", "SumoSample",
+    "TrainRequest", "__version__", "build_static",
     "calibrate", "compute_metrics", "load_scenario", "predict", "read_records", "resume_train",
     "run_baseline", "run_day", "run_days", "run_metrics", "run_train",
 ]
@@ -59,6 +63,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time __getattr__
 
     from urb_jax.city.routes import RouteParams
     from urb_jax.city.scenario import Scenario, load_scenario
+    from urb_jax.experiment.request import BaselineRequest, ResumeRequest, TrainRequest
     from urb_jax.experiment.run import RunResult, resume_train, run_baseline, run_train
     from urb_jax.reporting.metrics import compute_metrics
     from urb_jax.reporting.records import read_records, run_metrics

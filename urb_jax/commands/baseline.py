@@ -7,6 +7,7 @@ import argparse
 import json
 
 from urb_jax.commands.common import add_network_flags, add_set_flag
+from urb_jax.experiment.request import BaselineRequest
 from urb_jax.experiment.run import BASELINE_SECTIONS, run_baseline
 
 
@@ -34,13 +35,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = run_baseline(
+    out = run_baseline(BaselineRequest(
         model=args.model, net=args.net, task_conf=args.task_conf, env_conf=args.env_conf,
-        env_seed=args.env_seed, exp_id=args.id, networks_dir=args.networks_dir,
-        results_dir=args.results_dir, overwrite=args.overwrite, progress=not args.no_progress,
+        alg_conf=args.alg_conf, env_seed=args.env_seed, exp_id=args.id, networks_dir=args.networks_dir,
         human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
-        alg_conf=args.alg_conf, overrides=args.overrides,
-    )
+        overrides=tuple(args.overrides or ()), results_dir=args.results_dir, overwrite=args.overwrite,
+        progress=not args.no_progress))
     m = out.metrics
     config = json.loads((out.folder / "exp_config.json").read_text())
     replayed = f", {out.replayed_days} human days replayed" if out.replayed_days else ""

@@ -12,7 +12,7 @@ from urb_jax.algorithms.registry import ALGORITHMS, URB_ALIASES
 from urb_jax.commands.common import add_network_flags, add_set_flag
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.dry_run import describe, plan_train
-from urb_jax.experiment.hybrid.plan import MODES
+from urb_jax.experiment.request import MODES, ResumeRequest, TrainRequest
 from urb_jax.experiment.round_log import LOGGERS
 from urb_jax.experiment.run import RunResult, resume_train, run_train
 from urb_jax.experiment.urb_configs import TRAIN_SECTIONS
@@ -67,23 +67,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def request_of(args: argparse.Namespace) -> TrainRequest:
+    """The one train request the flags ask for (a run and its dry run read the same)."""
+    return TrainRequest(
+        alg=args.alg, net=args.net, task_conf=args.task_conf, alg_conf=args.alg_conf, env_conf=args.env_conf,
+        hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=tuple(args.seeds or [args.seed]),
+        mode=args.mode, train_days=args.train_days, exp_id=args.id, networks_dir=args.networks_dir,
+        human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
+        overrides=tuple(args.overrides or ()), executor=args.executor or "pool", ray_address=args.ray_address,
+        log=args.log, results_dir=args.results_dir, overwrite=args.overwrite, progress=not args.no_progress)
+
+
+def resume_request_of(args: argparse.Namespace) -> ResumeRequest:
+    """What `--resume` may say besides the run's id (the rest is the run's recorded request)."""
+    return ResumeRequest(
+        exp_id=args.resume, results_dir=args.results_dir, networks_dir=args.networks_dir,
+        executor=args.executor, ray_address=args.ray_address, overrides=tuple(args.overrides or ()),
+        log=args.log, progress=not args.no_progress)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.dry_run:
         return dry_run(args)
-    if args.resume:
-        outs = resume_train(args.resume, results_dir=args.results_dir, progress=not args.no_progress,
-                            executor_kind=args.executor, ray_address=args.ray_address,
-                            overrides=args.overrides, log=args.log, networks_dir=args.networks_dir)
-    else:
-        seeds = args.seeds or [args.seed]
-        outs = run_train(
-            alg=args.alg, net=args.net, task_conf=args.task_conf, alg_conf=args.alg_conf,
-            env_conf=args.env_conf, hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=seeds,
-            exp_id=args.id, mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
-            overwrite=args.overwrite, progress=not args.no_progress, train_days=args.train_days,
-            executor_kind=args.executor or "pool", ray_address=args.ray_address,
-            human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
-            overrides=args.overrides, log=args.log)
+    outs = resume_train(resume_request_of(args)) if args.resume else run_train(request_of(args))
     for out in outs:
         m = out.metrics
         print(f"results: {out.folder}  ({out.wall_time_s:.1f} s)")
@@ -105,12 +111,7 @@ def dry_run(args: argparse.Namespace) -> int:
     if args.resume:
         raise UrbJaxError("--dry-run checks a new run's configs; --resume continues a recorded run whose "
                           "configs were checked when it started. Fix: drop one of the two flags.")
-    plan = plan_train(
-        alg=args.alg, net=args.net, task_conf=args.task_conf, alg_conf=args.alg_conf, env_conf=args.env_conf,
-        hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=args.seeds or [args.seed], exp_id=args.id,
-        mode=args.mode, networks_dir=args.networks_dir, results_dir=args.results_dir,
-        overwrite=args.overwrite, train_days=args.train_days, drop_unroutable=args.drop_unroutable,
-        human_phase_from=args.human_phase_from, overrides=args.overrides, log=args.log)
+    plan = plan_train(request_of(args))
     print("dry run: every config loaded and checked; nothing simulated, no results folder created.")
     for line in describe(plan):
         print(line)

@@ -21,6 +21,7 @@ from urb_jax.algorithms.baselines import FixedPolicy
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.human_phase import HumanPhase, calibrate, reuse_human_phase, uncalibrated
 from urb_jax.experiment.hybrid.trainer import routing_env_kwargs, surrogate_env
+from urb_jax.experiment.request import BaselineRequest, TrainRequest
 from urb_jax.experiment.run import RunResult, TrainSetup, load_setup, run_policy
 from urb_jax.experiment.run_folder import CONFIG_FILE
 from urb_jax.game.env import RoutingEnv
@@ -55,7 +56,7 @@ def surrogate_env_from_run(run: str | Path) -> RunEnv:
     """The surrogate env of `run` at round 0: its scenario, CAVs, trained humans and the surrogate
     calibrated on its human phase's calibration days (no SUMO day is run)."""
     folder, config = _train_config(run)
-    setup = load_setup(config["train_args"])
+    setup = load_setup(TrainRequest.from_record(config["train_args"], [config["train_args"]["seed"]]))
     env_seed = int(config["env_seed"])
     human = reuse_human_phase(folder, config, setup.scn, setup.task, setup.hyb, env_seed, calibrate=True)
     if not len(human.calib_choices):
@@ -78,8 +79,9 @@ def evaluate_on_sumo(policy: Policy, run: str | Path, *, name: str = "outside", 
     in results_dir/exp_id/ (default id: name_<network>_<task>_s<env seed>)."""
     folder, config = _train_config(run)
     args = config["train_args"]
-    return run_policy(FixedPolicy(policy, name), exp_id=exp_id, net=args["net"], task_conf=args["task_conf"],
-                      env_conf=args["env_conf"], env_seed=int(args["env_seed"]),
-                      networks_dir=args["networks_dir"], results_dir=results_dir, overwrite=overwrite,
-                      progress=progress, task_overrides={"training_eps": 0}, human_phase_from=str(folder),
-                      drop_unroutable=bool(args.get("drop_unroutable", False)))
+    req = BaselineRequest(net=args["net"], task_conf=args["task_conf"], env_conf=args["env_conf"],
+                          env_seed=int(args["env_seed"]), exp_id=exp_id, networks_dir=args["networks_dir"],
+                          human_phase_from=str(folder),
+                          drop_unroutable=bool(args.get("drop_unroutable", False)),
+                          results_dir=results_dir, overwrite=overwrite, progress=progress)
+    return run_policy(FixedPolicy(policy, name), req, task_overrides={"training_eps": 0})

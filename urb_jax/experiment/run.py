@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from urb_jax.algorithms.baselines import CavPolicy, make_baseline
-from urb_jax.algorithms.registry import canonical, load_algo_config, load_baseline_config
+from urb_jax.algorithms.registry import load_algo_config, load_baseline_config
 from urb_jax.city.demand import scale_demand
 from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.city.scenario import Scenario, load_scenario
@@ -31,7 +31,6 @@ from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.configio import in_section, to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop
-from urb_jax.core.paths import absolute_dir
 from urb_jax.core.progress import Progress
 from urb_jax.core.version import __version__
 from urb_jax.experiment.checkpoints import checkpoint_meta, latest_checkpoint
@@ -52,6 +51,7 @@ from urb_jax.experiment.human_phase import (
 from urb_jax.experiment.hybrid.plan import AlgoConfig, HybridConfig, load_hybrid_config
 from urb_jax.experiment.hybrid.trainer import Stopped, TrainSummary, train_group
 from urb_jax.experiment.protocol import DayFn, run_experiment
+from urb_jax.experiment.request import BaselineRequest, ResumeRequest, TrainRequest
 from urb_jax.experiment.round_log import check_logger, round_log
 from urb_jax.experiment.run_folder import (
     CONFIG_FILE,
@@ -84,8 +84,6 @@ from urb_jax.reporting.urb_names import baseline_names, names_of, train_names
 from urb_jax.sumo_bridge import DayExecutor, DayResult, InProcessExecutor, MemoExecutor, SumoPool, run_day
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 
-TrainArgs = dict[str, Any]  # a train run's arguments as exp_config.json records them ("train_args")
-
 
 @dataclass(frozen=True)
 class RunResult:
@@ -113,31 +111,27 @@ class TrainSetup(NamedTuple):
     alg_config: AlgoConfig
 
 
-def load_setup(args: TrainArgs) -> TrainSetup:
-    """The run's scenario and configs, each config with its `--set` overrides (`args["overrides"]`)."""
-    ov = run_overrides(args)
-    task, task_path = load_task_config(args["task_conf"], in_section(ov, "task"))
-    env, env_path = load_env_config(args["env_conf"], in_section(ov, "env"))
-    hyb, hyb_path = load_hybrid_config(args["hybrid_conf"], in_section(ov, "hybrid"))
-    if args.get("train_days") is not None:  # 0 is a value, not "use the config's"
-        if int(args["train_days"]) < 1:
-            raise ConfigError(f"--train-days {args['train_days']}: a run needs at least one training day. "
-                              "Fix: pass --train-days 1 or more (6000 is the paper's budget).")
+def load_setup(req: TrainRequest) -> TrainSetup:
+    """The run's scenario and configs, each config with its `--set` overrides."""
+    ov = run_overrides(req.overrides)
+    task, task_path = load_task_config(req.task_conf, in_section(ov, "task"))
+    env, env_path = load_env_config(req.env_conf, in_section(ov, "env"))
+    hyb, hyb_path = load_hybrid_config(req.hybrid_conf, in_section(ov, "hybrid"))
+    if req.train_days is not None:  # the request refuses fewer than one day
         if any(o.key == "train_days" for o in in_section(ov, "hybrid")):
-            raise ConfigError(f"--train-days {args['train_days']} and --set hybrid.train_days both set the "
+            raise ConfigError(f"--train-days {req.train_days} and --set hybrid.train_days both set the "
                               "training budget. Fix: give one of them.")
-        hyb = dataclasses.replace(hyb, train_days=int(args["train_days"]))
-    alg_config = load_algo_config(args["alg"], args["alg_conf"], in_section(ov, "alg"))
-    scn = _scenario(args["net"], args["networks_dir"], args["env_seed"], env, task,
-                    bool(args.get("drop_unroutable", False)))  # runs before the flag: False
+        hyb = dataclasses.replace(hyb, train_days=req.train_days)
+    alg_config = load_algo_config(req.alg, req.alg_conf, in_section(ov, "alg"))
+    scn = _scenario(req.net, req.networks_dir, req.env_seed, env, task, req.drop_unroutable)
     return TrainSetup(scn, task, task_path, env, env_path, hyb, hyb_path, alg_config)
 
 
-def _scenario(net: str, networks_dir: str | None, env_seed: int, env: EnvConfig,
+def _scenario(net: str | None, networks_dir: str | None, env_seed: int, env: EnvConfig,
               task: TaskConfig, drop_unroutable: bool) -> Scenario:
     """The network's scenario with the task's demand (`drop_unroutable`: see load_scenario)."""
-    scn = load_scenario(net, networks_dir=networks_dir, env_seed=env_seed, route_params=env.route_params(),
-                        drop_unroutable=drop_unroutable)
+    scn = load_scenario(net or DEFAULT_NETWORK, networks_dir=networks_dir, env_seed=env_seed,
+                        route_params=env.route_params(), drop_unroutable=drop_unroutable)
     return scale_demand(scn, task.demand_scale, seed=env_seed, mode=task.demand_mode,
                         jitter_s=task.demand_jitter_s)
 
@@ -227,86 +221,62 @@ def _executor(given: DayExecutor | None, hyb: HybridConfig, log_dir: Path, kind:
 
 
 @with_run_log
-def run_train(*, alg: str = "iql", net: str | None = None, task_conf: str = "config1",
-              alg_conf: str = "config1", env_conf: str = "config1", hybrid_conf: str = "default",
-              env_seed: int = 42, seeds: list[int] | None = None, exp_id: str | None = None,
-              mode: str = "hybrid", networks_dir: str | None = None, results_dir: str = "results",
-              overwrite: bool = False, progress: bool = True, train_days: int | None = None,
-              executor: DayExecutor | None = None, stop_after_round: int | None = None,
-              executor_kind: str = "pool", ray_address: str | None = None,
-              human_phase_from: str | None = None, drop_unroutable: bool = False,
-              overrides: list[str] | None = None, log: str | None = None,
+def run_train(req: TrainRequest, *, executor: DayExecutor | None = None, stop_after_round: int | None = None,
               human_phase_candidates: Sequence[str] = ()) -> list[RunResult]:
-    """Train every seed (sharing the human phase and the SUMO executor; groups of up to
-    `max_vmapped_seeds` seeds train together under vmap); one results folder per seed.
-    `human_phase_from`: reuse that earlier train run's human phase instead of simulating it;
-    `human_phase_candidates`: reuse the first of these finished runs' whose human phase is this
-    run's, if any (a suite's earlier runs).
-    `overrides`: `--set SECTION.KEY=VALUE` items (recorded; a resume re-applies them). `log`:
-    "tensorboard" logs each round to results/<id>/tensorboard/ (`round_log`)."""
+    """Train every seed of `req` (sharing the human phase and the SUMO executor; groups of up to
+    `max_vmapped_seeds` seeds train together); one results folder per seed. `executor`: run the
+    SUMO days there instead of a new one of `req.executor`'s kind; `human_phase_candidates`: reuse
+    the first of these finished runs' human phase that is this run's, if any (a suite's earlier
+    runs); `stop_after_round`: stop there as a kill would (tests)."""
     enable_compile_cache()
-    check_logger(log)
-    seeds = seeds or [0]
-    net = net or DEFAULT_NETWORK
-    task_conf, alg_conf, env_conf, hybrid_conf = map(_resolved, (task_conf, alg_conf, env_conf, hybrid_conf))
-    args: TrainArgs = {
-        "alg": canonical(alg), "net": net, "task_conf": task_conf, "alg_conf": alg_conf, "env_conf": env_conf,
-        "hybrid_conf": hybrid_conf, "env_seed": env_seed, "mode": mode,
-        "networks_dir": absolute_dir(networks_dir), "train_days": train_days, "executor": executor_kind,
-        "ray_address": ray_address, "drop_unroutable": drop_unroutable, "overrides": list(overrides or []),
-        "log": log}
+    check_logger(req.log)
+    req = req.resolved()
     t0 = time.perf_counter()
-    setup = load_setup(args)
-    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=mode)
-    config = _train_config(setup, args, human_phase_from)
+    setup = load_setup(req)
+    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode)
+    config = _train_config(setup, req)
     human = None  # checked before any results folder is created
 
     def reuse(source: Path) -> HumanPhase:
-        return reuse_human_phase(source, config, setup.scn, setup.task, setup.hyb, env_seed,
-                                 calibrate=mode != "sumo")
+        return reuse_human_phase(source, config, setup.scn, setup.task, setup.hyb, req.env_seed,
+                                 calibrate=req.mode != "sumo")
 
-    if human_phase_from:
-        human = reuse(Path(results_dir) / human_phase_from)
-    elif found := first_reusable(Path(results_dir), human_phase_candidates, reuse):
-        human_phase_from, human = found
-        config["human_phase_from"] = human_phase_from
-    names = train_run_names(exp_id, args["alg"], mode, net, setup.task_path.stem, seeds)
-    folders = {s: create_results_dir(results_dir, name, overwrite)
-               for s, name in zip(seeds, names, strict=True)}
-    configs = _seed_configs(config, args, seeds, folders, setup.hyb)
-    log_run_to(folders[seeds[0]])  # beside the SUMO logs (the executor's log_dir)
+    if req.human_phase_from:
+        human = reuse(Path(req.results_dir) / req.human_phase_from)
+    elif found := first_reusable(Path(req.results_dir), human_phase_candidates, reuse):
+        req, human = dataclasses.replace(req, human_phase_from=found[0]), found[1]
+        config["human_phase_from"] = found[0]
+    names = train_run_names(req.exp_id, req.alg, req.mode, req.net, setup.task_path.stem, list(req.seeds))
+    folders = {s: create_results_dir(req.results_dir, name, req.overwrite)
+               for s, name in zip(req.seeds, names, strict=True)}
+    configs = _seed_configs(config, req, folders, setup.hyb)
+    first = folders[req.seeds[0]]
+    log_run_to(first)  # beside the SUMO logs (the executor's log_dir)
     with _stops_cleanly(list(folders.values())), \
-            _executor(executor, setup.hyb, folders[seeds[0]], executor_kind, ray_address) as ex:
+            _executor(executor, setup.hyb, first, req.executor, req.ray_address) as ex:
         if human is None:
-            days = journal(ex, folders[seeds[0]])
-            human = _simulate_human_phase(setup, days, env_seed, mode, progress)
-            for s in seeds:  # repeated days of converged humans, each run once
+            days = journal(ex, first)
+            human = _simulate_human_phase(setup, days, req.env_seed, req.mode, req.progress)
+            for s in req.seeds:  # repeated days of converged humans, each run once
                 configs[s]["human_phase_days_read_back"] = days.reused
         for folder in folders.values():
             save_human_phase(folder, human)
         t_human = time.perf_counter() - t0
-        return _train_groups(setup, args, configs, seeds, folders, ex, human, t_human, progress,
-                             stop_after_round)
+        return _train_groups(setup, req, configs, folders, ex, human, t_human, stop_after_round)
 
 
-def _resolved(config: str) -> str:
-    """A config given as a file path, made absolute (a `--resume` from another folder finds it);
-    a config id as it is."""
-    path = Path(config).expanduser()
-    return str(path.resolve()) if path.suffix == ".json" and path.is_file() else config
-
-
-def _seed_configs(config: dict[str, Any], args: TrainArgs, seeds: list[int], folders: dict[int, Path],
-                  hyb: HybridConfig) -> dict[int, dict[str, Any]]:
+def _seed_configs(config: dict[str, Any], req: TrainRequest, folders: dict[int, Path], hyb: HybridConfig
+                  ) -> dict[int, dict[str, Any]]:
     """Each seed's exp_config.json, written before the first SUMO day so that a run stopped at any
     instant is a urb-jax run that `--resume` continues (and `--overwrite` may replace)."""
     size = max(1, hyb.max_vmapped_seeds)
+    seeds = list(req.seeds)
     groups = [seeds[i:i + size] for i in range(0, len(seeds), size)]
     everyone = [folders[s].name for s in seeds]
     configs = {}
     for group in groups:
         for s in group:
-            configs[s] = {**config, "seed": s, "train_args": args | {"seed": s},
+            configs[s] = {**config, "seed": s, "train_args": req.record(s),
                           "group": [folders[g].name for g in group], "seeds_together": len(group),
                           "run_folders": everyone, JOURNAL_KEY: folders[seeds[0]].name}
             write_config(folders[s], configs[s])
@@ -314,69 +284,62 @@ def _seed_configs(config: dict[str, Any], args: TrainArgs, seeds: list[int], fol
 
 
 @with_run_log
-def resume_train(exp_id: str, *, results_dir: str = "results", progress: bool = True,
-                 executor: DayExecutor | None = None, executor_kind: str | None = None,
-                 ray_address: str | None = None, overrides: list[str] | None = None,
-                 log: str | None = None, networks_dir: str | None = None) -> list[RunResult]:
+def resume_train(req: ResumeRequest, *, executor: DayExecutor | None = None) -> list[RunResult]:
     """Continue the train run results/<exp_id>/ belongs to: every unfinished group of its seeds
-    (`max_vmapped_seeds`), in seed order, each from its newest checkpoint, with the recorded
-    arguments (and the recorded SUMO executor unless `executor_kind` overrides it); one result per
-    seed resumed. The recorded `--set` overrides are re-applied; `overrides` given here must be the
-    same ones (`check_resume_overrides`). `log`: the round logger (default: the recorded one).
-    `networks_dir`: where the network is now (default: the folder of the network file the run
-    started with)."""
+    (`max_vmapped_seeds`), in seed order, each from its newest checkpoint, with the request it
+    recorded (`TrainRequest.from_record`) and what `req` may change: the SUMO executor, the round
+    logger and where the network is now. `req.overrides`, if given, must be the recorded ones
+    (`check_resume_overrides`)."""
     enable_compile_cache()
-    folder = Path(results_dir) / check_exp_id(exp_id)
+    results_dir = Path(req.results_dir)
+    folder = results_dir / check_exp_id(req.exp_id)
     if not (folder / CONFIG_FILE).is_file():
-        raise UrbJaxError(f"{folder}: no urb-jax run '{exp_id}' here (no {CONFIG_FILE}). Fix: pass the id "
-                          "of a run in --results-dir (`ls {results_dir}`), or the --results-dir it used.")
+        raise UrbJaxError(f"{folder}: no urb-jax run '{req.exp_id}' here (no {CONFIG_FILE}). Fix: pass the "
+                          f"id of a run in --results-dir (`ls {results_dir}`), or the --results-dir it used.")
     config = json.loads((folder / CONFIG_FILE).read_text())
     if "train_args" not in config:
         raise UrbJaxError(f"{folder}: the run was stopped before its first SUMO day (or is not a train run): "
                           "there is nothing to resume. Fix: run the same command again with --overwrite.")
     # the run's seed groups, in seed order (a run from before run_folders: its own group)
-    groups = seed_groups_of(Path(results_dir), config.get("run_folders", config.get("group", [exp_id])))
-    unfinished = [g for g in groups if any(run_status(Path(results_dir) / n) != "done" for n in g)]
+    groups = seed_groups_of(results_dir, config.get("run_folders", config.get("group", [req.exp_id])))
+    unfinished = [g for g in groups if any(run_status(results_dir / n) != "done" for n in g)]
     if not unfinished:
         for name in (n for g in groups for n in g):
-            remove_parts(Path(results_dir) / name)  # a kill after the last exp_config write left them
+            remove_parts(results_dir / name)  # a kill after the last exp_config write left them
         raise UrbJaxError(f"{folder}: this run is already complete.")
-    kwargs = dict(results_dir=results_dir, progress=progress, executor=executor, executor_kind=executor_kind,
-                  ray_address=ray_address, overrides=overrides, log=log, networks_dir=networks_dir)
-    return [r for group in unfinished for r in _resume_group(group, **kwargs)]
+    return [r for group in unfinished for r in _resume_group(group, req, executor)]
 
 
-def _resume_group(group: list[str], *, results_dir: str, progress: bool, executor: DayExecutor | None,
-                  executor_kind: str | None, ray_address: str | None, overrides: list[str] | None,
-                  log: str | None, networks_dir: str | None) -> list[RunResult]:
+def _resume_group(group: list[str], resume: ResumeRequest, executor: DayExecutor | None) -> list[RunResult]:
     """One seed group of `resume_train`, from its newest checkpoint (none: from its human phase)."""
-    folder = Path(results_dir) / group[0]
-    folders = [Path(results_dir) / name for name in group]
+    results_dir = Path(resume.results_dir)
+    folders = [results_dir / name for name in group]
     for f in folders:
         lock_run(f)
     log_run_to(folders[0])
     configs = [json.loads((f / CONFIG_FILE).read_text()) for f in folders]
-    args: TrainArgs = configs[0]["train_args"]
-    check_resume_overrides(folder, args, overrides)
-    if log is not None:
-        args = {**args, "log": log}
-    check_logger(args.get("log"))
-    seeds = [c["train_args"]["seed"] for c in configs]
-    args = {**args, "networks_dir": networks_dir_of(configs[0], networks_dir)}
-    setup = load_setup(args)
+    recorded = configs[0]["train_args"]
+    check_resume_overrides(folders[0], recorded.get("overrides") or [], resume.overrides)
+    check_logger(resume.log or recorded.get("log"))
+    now = {"results_dir": resume.results_dir, "progress": resume.progress,
+           "networks_dir": networks_dir_of(configs[0], resume.networks_dir),
+           "human_phase_from": configs[0].get("human_phase_from"),
+           **{k: v for k, v in (("log", resume.log), ("executor", resume.executor),
+                                ("ray_address", resume.ray_address)) if v is not None}}
+    req = TrainRequest.from_record(recorded, [c["train_args"]["seed"] for c in configs], **now)
+    setup = load_setup(req)
     if "hybrid_seed_axis" not in configs[0]:  # started before the key: its seeds were vmapped
         setup = setup._replace(hyb=dataclasses.replace(setup.hyb, seed_axis="vmap"))
-    check_run_network(folder / CONFIG_FILE, configs[0], setup.scn.n_agents, setup.scn.net_file)
+    check_run_network(folders[0] / CONFIG_FILE, configs[0], setup.scn.n_agents, setup.scn.net_file)
     with _stops_cleanly(folders), \
-            _executor(executor, setup.hyb, folders[0], executor_kind or args.get("executor", "pool"),
-                      ray_address or args.get("ray_address")) as ex:
+            _executor(executor, setup.hyb, folders[0], req.executor, req.ray_address) as ex:
         elapsed = _wall_clock(_wall_before(folders[0], configs))
         human = None
         if latest_checkpoint(folders[0]) is None:  # stopped before round 0's checkpoint: start over
-            human = _human_phase_again(setup, args, configs[0], Path(results_dir), ex, progress)
+            human = _human_phase_again(setup, req, configs[0], ex)
             for f in folders:
                 save_human_phase(f, human)
-        result = _train(setup, args, seeds, folders, ex, human, progress, None, elapsed)
+        result = _train(setup, req, list(req.seeds), folders, ex, human, None, elapsed)
     wall = elapsed()
     here = machine()  # resumed_on: where each resume computed ("machine": where the run started)
     for c in configs:  # resumed_with_source: the code that finished it (versions: the code that started it)
@@ -392,14 +355,13 @@ def _wall_before(folder: Path, configs: list[dict[str, Any]]) -> float:
     return max([meta.get("wall_s") or 0.0, *(c.get("wall_time_s", 0.0) for c in configs)])
 
 
-def check_resume_overrides(folder: Path, args: TrainArgs, given: list[str] | None) -> None:
+def check_resume_overrides(folder: Path, recorded: Sequence[str], given: Sequence[str]) -> None:
     """A resume re-applies the run's recorded --set items; different ones would change the run's
     configs half-way, so they are refused (the same ones, however spelled, are accepted)."""
     if not given:
         return
-    recorded = args.get("overrides") or []
-    same = [(o.section, o.key, o.value) for o in run_overrides({"overrides": given})] == \
-        [(o.section, o.key, o.value) for o in run_overrides(args)]
+    same = [(o.section, o.key, o.value) for o in run_overrides(given)] == \
+        [(o.section, o.key, o.value) for o in run_overrides(recorded)]
     if not same:
         was = " ".join(f"--set {g}" for g in recorded) or "no --set"
         raise UrbJaxError(f"{folder}: --resume continues the run with the configs it started with ({was}, "
@@ -408,34 +370,46 @@ def check_resume_overrides(folder: Path, args: TrainArgs, given: list[str] | Non
                           "run with another --id.")
 
 
-def _human_phase_again(setup: TrainSetup, args: TrainArgs, config: dict[str, Any], results_dir: Path,
-                       executor: DayExecutor, progress: bool) -> HumanPhase:
+def _human_phase_again(setup: TrainSetup, req: TrainRequest, config: dict[str, Any],
+                       executor: DayExecutor) -> HumanPhase:
     """The human phase of a run resumed before its first checkpoint: replayed from the run it
     reuses, or simulated again with the days already done read back from the run's journal."""
-    if config.get("human_phase_from"):
-        return reuse_human_phase(results_dir / config["human_phase_from"], config, setup.scn, setup.task,
-                                 setup.hyb, args["env_seed"], calibrate=args["mode"] != "sumo")
+    results_dir = Path(req.results_dir)
+    if req.human_phase_from:
+        return reuse_human_phase(results_dir / req.human_phase_from, config, setup.scn, setup.task,
+                                 setup.hyb, req.env_seed, calibrate=req.mode != "sumo")
     holder = results_dir / config.get(JOURNAL_KEY, config["group"][0])
-    return _simulate_human_phase(setup, journal(executor, holder), args["env_seed"], args["mode"], progress)
+    return _simulate_human_phase(setup, journal(executor, holder), req.env_seed, req.mode, req.progress)
 
 
-def _train_config(setup: TrainSetup, args: TrainArgs, human_phase_from: str | None) -> dict[str, Any]:
+def _train_config(setup: TrainSetup, req: TrainRequest) -> dict[str, Any]:
     """exp_config.json of every seed of a train run, before its seed and group keys."""
     scn, task, task_path, env, env_path, hyb, hyb_path, _ = setup
     return {
-        **to_dict(env), **to_dict(task), **{f"hybrid_{k}": v for k, v in to_dict(hyb).items()},
-        "network": scn.name, "net_file": scn.net_file, "env_seed": args["env_seed"],
-        "env_config": env_path.stem, "task_config": task_path.stem, "hybrid_config": hyb_path.stem,
-        **train_names(args["alg"], args["mode"], hyb_path.stem, hyb.train_days, args["alg_conf"]),
+        **_experiment_config(scn, task, task_path, env, env_path, req.env_seed, req.human_phase_from,
+                             req.drop_unroutable),
+        **{f"hybrid_{k}": v for k, v in to_dict(hyb).items()}, "hybrid_config": hyb_path.stem,
+        **train_names(req.alg, req.mode, hyb_path.stem, hyb.train_days, req.alg_conf),
         "training_eps": None,  # the task's 200 is no train run's: the SUMO training days, set at the end
-        "mode": args["mode"], "num_agents": scn.n_agents,
-        "num_machines": int(scn.n_agents * task.ratio_machines), "exp_type": "normal",
-        "human_days": task.human_learning_episodes, "versions": versions(), "machine": machine(),
-        "command": sys.argv, "status": "running", "human_phase_from": human_phase_from,
-        SURROGATE_KEY: surrogate_human_days(hyb, task.human_learning_episodes, args["mode"] != "sumo"),
-        **_dropped(scn, bool(args.get("drop_unroutable", False))),
-        CONFIG_ALIASES_KEY: config_aliases(args),  # URB key names given, and what they set
-        OVERRIDES_KEY: train_override_record(args),  # --set items as given and the values they set
+        "mode": req.mode,
+        SURROGATE_KEY: surrogate_human_days(hyb, task.human_learning_episodes, req.mode != "sumo"),
+        CONFIG_ALIASES_KEY: config_aliases(req),  # URB key names given, and what they set
+        OVERRIDES_KEY: train_override_record(req),  # --set items as given and the values they set
+    }
+
+
+def _experiment_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvConfig, env_path: Path,
+                       env_seed: int, human_phase_from: str | None, drop_unroutable: bool) -> dict[str, Any]:
+    """exp_config.json's keys of every run, train or baseline: the configs' values, the network and
+    its agents, where and with what the run computed."""
+    return {
+        **to_dict(env), **to_dict(task),
+        "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed,
+        "env_config": env_path.stem, "task_config": task_path.stem,
+        "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
+        "exp_type": "normal", "human_days": task.human_learning_episodes,
+        "versions": versions(), "machine": machine(), "urb_jax_version": __version__, "command": sys.argv,
+        "status": "running", "human_phase_from": human_phase_from, **_dropped(scn, drop_unroutable),
     }
 
 
@@ -455,12 +429,13 @@ def _simulate_human_phase(setup: TrainSetup, executor: DayExecutor, env_seed: in
     return human
 
 
-def _train_groups(setup: TrainSetup, args: TrainArgs, configs: dict[int, dict[str, Any]], seeds: list[int],
+def _train_groups(setup: TrainSetup, req: TrainRequest, configs: dict[int, dict[str, Any]],
                   folders: dict[int, Path], executor: DayExecutor, human: HumanPhase, t_human: float,
-                  progress: bool, stop_after_round: int | None) -> list[RunResult]:
+                  stop_after_round: int | None) -> list[RunResult]:
     """The seeds in groups of up to `max_vmapped_seeds`, one group after another; the first
     group's wall time includes the human phase."""
     size = max(1, setup.hyb.max_vmapped_seeds)
+    seeds = list(req.seeds)
     outs: list[RunResult] = []
     for gi, first in enumerate(range(0, len(seeds), size)):
         group = seeds[first:first + size]
@@ -468,22 +443,22 @@ def _train_groups(setup: TrainSetup, args: TrainArgs, configs: dict[int, dict[st
             configs[s]["human_phase_s"] = round(t_human, 2)
             write_config(folders[s], configs[s])
         elapsed = _wall_clock(t_human if gi == 0 else 0.0)
-        result = _train(setup, args, group, [folders[s] for s in group], executor, human, progress,
-                        stop_after_round, elapsed)
+        result = _train(setup, req, group, [folders[s] for s in group], executor, human, stop_after_round,
+                        elapsed)
         wall = elapsed()
         outs += _finish_group([folders[s] for s in group], [configs[s] for s in group], result, setup.task,
                               [wall] * len(group))
     return outs
 
 
-def _train(setup: TrainSetup, args: TrainArgs, seeds: list[int], folders: list[Path], executor: DayExecutor,
-           human: HumanPhase | None, progress: bool, stop_after_round: int | None,
+def _train(setup: TrainSetup, req: TrainRequest, seeds: list[int], folders: list[Path],
+           executor: DayExecutor, human: HumanPhase | None, stop_after_round: int | None,
            elapsed: Callable[[], float]) -> list[TrainSummary] | Stopped:
-    with round_log(folders, args.get("log"), resumed=human is None) as on_round:
-        return train_group(scn=setup.scn, task=setup.task, env_cfg=setup.env, alg=args["alg"],
-                           alg_config=setup.alg_config, cfg=setup.hyb, mode=args["mode"], seeds=seeds,
-                           env_seed=args["env_seed"], folders=folders, executor=executor, human=human,
-                           progress=progress, stop_after_round=stop_after_round, on_round=on_round,
+    with round_log(folders, req.log, resumed=human is None) as on_round:
+        return train_group(scn=setup.scn, task=setup.task, env_cfg=setup.env, alg=req.alg,
+                           alg_config=setup.alg_config, cfg=setup.hyb, mode=req.mode, seeds=seeds,
+                           env_seed=req.env_seed, folders=folders, executor=executor, human=human,
+                           progress=req.progress, stop_after_round=stop_after_round, on_round=on_round,
                            elapsed=elapsed)
 
 
@@ -524,107 +499,93 @@ def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H
 
 
 @with_run_log
-def run_baseline(*, model: str = "aon", net: str | None = None, task_conf: str = "config1",
-                 env_conf: str = "config1", env_seed: int = 42, exp_id: str | None = None,
-                 networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
-                 progress: bool = True, day_fn: DayFn | None = None,
-                 task_overrides: dict[str, Any] | None = None, human_phase_from: str | None = None,
-                 drop_unroutable: bool = False, alg_conf: str | None = None,
-                 overrides: list[str] | None = None, human_phase_candidates: Sequence[str] = ()) -> RunResult:
-    """One baseline experiment in results/<exp_id>/ (`human_phase_from`: days 1..H replayed from
+def run_baseline(req: BaselineRequest, *, day_fn: DayFn | None = None,
+                 task_overrides: dict[str, Any] | None = None,
+                 human_phase_candidates: Sequence[str] = ()) -> RunResult:
+    """One baseline experiment in results/<exp_id>/ (`req.human_phase_from`: days 1..H replayed from
     that run's records instead of simulated; `human_phase_candidates`: from the first of these
-    finished runs that can be replayed, if any; `alg_conf`: URB's baseline algo config, whose
-    training_eps sets the CAV days; `overrides`: --set items of the task, env and alg configs)."""
-    return _run_policy(make_baseline(model), lambda task: baseline_names(model, task.training_eps),
-                       net=net, task_conf=task_conf, env_conf=env_conf, env_seed=env_seed, exp_id=exp_id,
-                       id_prefix=model, networks_dir=networks_dir, results_dir=results_dir,
-                       overwrite=overwrite, progress=progress, day_fn=day_fn, task_overrides=task_overrides,
-                       human_phase_from=human_phase_from, drop_unroutable=drop_unroutable, alg_conf=alg_conf,
-                       overrides=overrides, human_phase_candidates=human_phase_candidates)
+    finished runs that can be replayed, if any). `day_fn`: simulate each day with it instead of
+    SUMO; `task_overrides`: task config values set directly (tests)."""
+    return _run_policy(make_baseline(req.model), lambda task: baseline_names(req.model, task.training_eps),
+                       req.model, req, day_fn, task_overrides, human_phase_candidates)
 
 
 @with_run_log
-def run_policy(policy: CavPolicy, *, exp_id: str | None = None, net: str | None = None,
-               task_conf: str = "config1", env_conf: str = "config1", env_seed: int = 42,
-               networks_dir: str | None = None, results_dir: str = "results", overwrite: bool = False,
-               progress: bool = True, day_fn: DayFn | None = None,
-               task_overrides: dict[str, Any] | None = None, human_phase_from: str | None = None,
-               drop_unroutable: bool = False) -> RunResult:
+def run_policy(policy: CavPolicy, req: BaselineRequest | None = None, *, day_fn: DayFn | None = None,
+               task_overrides: dict[str, Any] | None = None) -> RunResult:
     """URB's experiment in SUMO with any `CavPolicy` (e.g. `algorithms.baselines.FixedPolicy` around
-    a policy trained outside urb-jax), in results/<exp_id>/ with the metric files of every run.
-    A policy trained elsewhere needs no SUMO training days: task_overrides={"training_eps": 0} runs
-    the human phase (or replays it, `human_phase_from`) and the test days only."""
+    a policy trained outside urb-jax), in results/<exp_id>/ with the metric files of every run;
+    `req` says where and how (its `model` is not read: the policy is given). A policy trained
+    elsewhere needs no SUMO training days: task_overrides={"training_eps": 0} runs the human phase
+    (or replays it, `req.human_phase_from`) and the test days only."""
     labels = {"alg_config": "outside", "algorithm": policy.name,
               "script": "urb_jax.experiment.run.run_policy"}
-    return _run_policy(policy, lambda _task: labels, net=net, task_conf=task_conf, env_conf=env_conf,
-                       env_seed=env_seed, exp_id=exp_id, id_prefix=policy.name, networks_dir=networks_dir,
-                       results_dir=results_dir, overwrite=overwrite, progress=progress, day_fn=day_fn,
-                       task_overrides=task_overrides, human_phase_from=human_phase_from,
-                       drop_unroutable=drop_unroutable)
+    return _run_policy(policy, lambda _task: labels, policy.name, req or BaselineRequest(), day_fn,
+                       task_overrides)
 
 
-def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, Any]], *, net: str | None,
-                task_conf: str, env_conf: str, env_seed: int, exp_id: str | None, id_prefix: str,
-                networks_dir: str | None, results_dir: str, overwrite: bool, progress: bool,
-                day_fn: DayFn | None, task_overrides: dict[str, Any] | None, human_phase_from: str | None,
-                drop_unroutable: bool, alg_conf: str | None = None,
-                overrides: list[str] | None = None, human_phase_candidates: Sequence[str] = ()) -> RunResult:
+def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, Any]], id_prefix: str,
+                req: BaselineRequest, day_fn: DayFn | None, task_overrides: dict[str, Any] | None,
+                human_phase_candidates: Sequence[str] = ()) -> RunResult:
     """Every day in SUMO with `policy`; `labels_of(task)`: what exp_config.json calls the policy; the
     default id is `id_prefix`_<network>_<task>_s<env seed>."""
     enable_compile_cache()
-    net = net or DEFAULT_NETWORK
-    loaded, task_overrides = _baseline_configs(task_conf, env_conf, alg_conf, overrides, task_overrides)
+    net = req.net or DEFAULT_NETWORK
+    loaded, task_overrides = _baseline_configs(req, task_overrides)
     task, task_path = loaded["task"].config, loaded["task"].path
     if task_overrides:
         task = dataclasses.replace(task, **task_overrides)
     env, env_path = loaded["env"].config, loaded["env"].path
     check_runnable(task, task_path, 0, train=False)
-    exp_id = exp_id or f"{id_prefix}_{Path(net).name}_{task_path.stem}_s{env_seed}"
+    exp_id = req.exp_id or f"{id_prefix}_{Path(net).name}_{task_path.stem}_s{req.env_seed}"
     t0 = time.perf_counter()
-    scn = _scenario(net, networks_dir, env_seed, env, task, drop_unroutable)  # a network error: no folder
-    config = _baseline_config(scn, task, task_path, env, env_path, env_seed, labels_of(task),
-                              human_phase_from, drop_unroutable)
-    config[OVERRIDES_KEY] = override_record(overrides, loaded)
+    scn = _scenario(net, req.networks_dir, req.env_seed, env, task, req.drop_unroutable)  # error: no folder
+    human_phase_from = req.human_phase_from
+    config = {**_experiment_config(scn, task, task_path, env, env_path, req.env_seed, human_phase_from,
+                                   req.drop_unroutable),
+              **labels_of(task), "training_days": task.training_eps,
+              OVERRIDES_KEY: override_record(req.overrides, loaded)}
+    results_dir = Path(req.results_dir)
     if human_phase_from:  # a source that cannot be replayed: no folder either
-        check_replayable(Path(results_dir) / human_phase_from, config, task.human_learning_episodes)
-    elif found := first_reusable(Path(results_dir), human_phase_candidates,
+        check_replayable(results_dir / human_phase_from, config, task.human_learning_episodes)
+    elif found := first_reusable(results_dir, human_phase_candidates,
                                  lambda src: check_replayable(src, config, task.human_learning_episodes)):
         human_phase_from = config["human_phase_from"] = found[0]
-    folder = create_results_dir(results_dir, exp_id, overwrite)
+    folder = create_results_dir(results_dir, exp_id, req.overwrite)
     log_run_to(folder)
     write_config(folder, config)
     with _stops_cleanly([folder], resumable=False):
-        return _run_baseline_days(folder, config, scn, task, env, policy, env_seed, day_fn, results_dir,
-                                  human_phase_from, progress, t0)
+        return _run_baseline_days(folder, config, scn, task, env, policy, req.env_seed, day_fn, results_dir,
+                                  human_phase_from, req.progress, t0)
 
 
 BASELINE_SECTIONS = ("task", "env", "alg")  # --set SECTION.KEY=VALUE of `urb-jax baseline`
 
 
-def _baseline_configs(task_conf: str, env_conf: str, alg_conf: str | None, overrides: list[str] | None,
-                      task_overrides: dict[str, Any] | None) -> tuple[dict[str, Any], dict[str, Any]]:
+def _baseline_configs(req: BaselineRequest, task_overrides: dict[str, Any] | None
+                      ) -> tuple[dict[str, Any], dict[str, Any]]:
     """A baseline's task, env and (with `alg_conf`) baseline algo configs with their --set items,
     and the task keys the algo config sets (URB's baselines.py reads training_eps from it)."""
-    ov = run_overrides({"overrides": overrides}, BASELINE_SECTIONS)
-    loaded: dict[str, Any] = {"task": load_task(task_conf, in_section(ov, "task")),
-                              "env": load_env(env_conf, in_section(ov, "env"))}
+    ov = run_overrides(req.overrides, BASELINE_SECTIONS)
+    loaded: dict[str, Any] = {"task": load_task(req.task_conf, in_section(ov, "task")),
+                              "env": load_env(req.env_conf, in_section(ov, "env"))}
     task_overrides = dict(task_overrides or {})
-    if alg_conf is None and in_section(ov, "alg"):
+    if req.alg_conf is None and in_section(ov, "alg"):
         raise ConfigError(f"--set {in_section(ov, 'alg')[0].given}: a baseline reads an algorithm config "
                           "only with --alg-conf (URB's baseline config: training_eps). Fix: --set "
                           "task.training_eps=N, or pass --alg-conf.")
-    if alg_conf is not None:
+    if req.alg_conf is not None:
         if any(o.key == "training_eps" for o in in_section(ov, "task")):
             raise ConfigError("--set task.training_eps and --alg-conf both set the CAV training days (URB's "
                               "baselines read them from the algo config). Fix: --set alg.training_eps=N.")
-        loaded["alg"] = load_baseline_config(alg_conf, in_section(ov, "alg"))
+        loaded["alg"] = load_baseline_config(req.alg_conf, in_section(ov, "alg"))
         task_overrides["training_eps"] = loaded["alg"].config.training_eps
     return loaded, task_overrides
 
 
 def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task: TaskConfig,
                        env: EnvConfig, policy: CavPolicy, env_seed: int, day_fn: DayFn | None,
-                       results_dir: str, human_phase_from: str | None, progress: bool,
+                       results_dir: Path, human_phase_from: str | None, progress: bool,
                        t0: float) -> RunResult:
     writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
     if day_fn is None:  # SUMO's warnings go to the run's sumo.log, not the terminal
@@ -633,7 +594,7 @@ def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task
     day_fn = _one_day(memo)
     H, T = task.human_learning_episodes, task.training_eps
     if human_phase_from:
-        day_fn = load_replay(Path(results_dir) / human_phase_from, config, scn.agent_id, H, day_fn)
+        day_fn = load_replay(results_dir / human_phase_from, config, scn.agent_id, H, day_fn)
     run_experiment(scn, task, env, policy, env_seed=env_seed, day_fn=day_fn, sink=writer, progress=progress)
     writer.close()
     metrics, phases = write_outputs(folder, H, T)
@@ -667,17 +628,3 @@ def _one_day(executor: DayExecutor) -> DayFn:
         return executor.run_days(scenario, np.asarray(choices)[None], [seed],
                                  None if is_cav is None else np.asarray(is_cav)[None])[0]
     return day
-
-
-def _baseline_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvConfig, env_path: Path,
-                     env_seed: int, labels: dict[str, str], human_phase_from: str | None,
-                     drop_unroutable: bool) -> dict[str, Any]:
-    return {
-        **to_dict(env), **to_dict(task),
-        "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed,
-        "env_config": env_path.stem, "task_config": task_path.stem, **labels,
-        "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
-        "exp_type": "normal", "human_days": task.human_learning_episodes, "training_days": task.training_eps,
-        "versions": versions(), "machine": machine(), "urb_jax_version": __version__, "command": sys.argv,
-        "status": "running", "human_phase_from": human_phase_from, **_dropped(scn, drop_unroutable),
-    }

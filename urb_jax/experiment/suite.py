@@ -11,7 +11,6 @@ the folder, where they match (`human_phase.first_reusable`).
 
 from __future__ import annotations
 
-import inspect
 import json
 import os
 import re
@@ -26,6 +25,7 @@ import pandas as pd
 from urb_jax.core.atomic import write_bytes, write_text
 from urb_jax.core.configio import find_config
 from urb_jax.core.errors import ConfigError, UrbJaxError
+from urb_jax.experiment.request import BaselineRequest, ResumeRequest, TrainRequest, request_fields
 from urb_jax.experiment.run import resume_train, run_baseline, run_train
 from urb_jax.experiment.run_folder import run_status, run_writer, train_run_names
 from urb_jax.experiment.standing import seed_groups
@@ -45,8 +45,8 @@ KINDS = ("train", "baseline")
 
 @dataclass(frozen=True)
 class SuiteRun:
-    """One experiment of a suite: `run_train(**kwargs)` (kind train, with `seeds`) or
-    `run_baseline(**kwargs)` (kind baseline), under `exp_id`."""
+    """One experiment of a suite: a `TrainRequest(**kwargs)` (kind train, with `seeds`) or a
+    `BaselineRequest(**kwargs)` (kind baseline), under `exp_id`."""
 
     kind: str
     exp_id: str
@@ -166,14 +166,16 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
             log(f"suite:   {', '.join(finished)} finished (here or in the ledger); running {', '.join(left)}")
         if state == "stopped" and run.kind == "train":
             first = next(n for n in left if run_status(results_dir / n) is not None)
-            resume_train(first, results_dir=str(results_dir), progress=progress,
-                         executor=run.kwargs.get("executor"), networks_dir=run.kwargs.get("networks_dir"))
+            resume_train(ResumeRequest(first, results_dir=str(results_dir), progress=progress,
+                                       networks_dir=run.kwargs.get("networks_dir")))
         elif state != "done":  # a stopped baseline has no checkpoint: it starts again in its own folder
             part = remaining(run, left)
-            start = run_train if run.kind == "train" else run_baseline
-            again = {"overwrite": True} if state == "stopped" else {}
-            start(exp_id=part.exp_id, results_dir=str(results_dir), progress=progress, **again, **shared,
-                  **part.kwargs)
+            now = {"exp_id": part.exp_id, "results_dir": str(results_dir), "progress": progress,
+                   "overwrite": state == "stopped"}
+            if run.kind == "train":
+                run_train(TrainRequest(**part.kwargs, **now), **shared)
+            else:
+                run_baseline(BaselineRequest(**part.kwargs, **now), **shared)
         folders += finished_here(results_dir, run.folder_names())
     return folders
 
@@ -288,11 +290,8 @@ def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.
                         missing, partial)
 
 
-# Keyword arguments a suite file may give each kind (the commands' own flags, as Python names).
-_NOT_FROM_FILES = {"exp_id", "results_dir", "progress", "executor", "day_fn", "stop_after_round", "overwrite",
-                   "human_phase_candidates"}
-ALLOWED_ARGS = {kind: set(inspect.signature(fn).parameters) - _NOT_FROM_FILES
-                for kind, fn in (("train", run_train), ("baseline", run_baseline))}
+# The request fields a suite file may give each kind (the commands' own flags, as Python names).
+ALLOWED_ARGS = {"train": request_fields(TrainRequest), "baseline": request_fields(BaselineRequest)}
 
 
 @dataclass(frozen=True)
@@ -305,8 +304,8 @@ class SuiteSpec:
 
 
 def load_suite(path: str | Path) -> SuiteSpec:
-    """A suite file, validated: every run's kind, id and argument names (run_train's or
-    run_baseline's keywords); unique ids."""
+    """A suite file, validated: every run's kind, id and argument names (TrainRequest's or
+    BaselineRequest's fields); unique ids."""
     path = Path(path)
     try:
         raw = json.loads(path.read_text())

@@ -9,7 +9,7 @@ reads any file of URB's config/ folders as urb-jax would (tests and benchmarks/u
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +17,7 @@ from urb_jax.algorithms.registry import load_algo, load_urb_algo
 from urb_jax.core.configio import Loaded, Override, in_section, parse_overrides
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.hybrid.plan import load_hybrid
+from urb_jax.experiment.request import TrainRequest
 from urb_jax.game.config import load_env, load_task
 
 CONFIG_ALIASES_KEY = "config_aliases"
@@ -24,38 +25,37 @@ OVERRIDES_KEY = "overrides"
 TRAIN_SECTIONS = ("task", "env", "alg", "hybrid")  # --set SECTION.KEY=VALUE of `urb-jax train`
 
 
-def run_overrides(args: Mapping[str, Any], sections: tuple[str, ...] = TRAIN_SECTIONS
-                  ) -> tuple[Override, ...]:
-    """A run's --set items (`args["overrides"]`, as given; absent in runs before them), parsed."""
-    return parse_overrides(args.get("overrides") or (), sections)
+def run_overrides(given: Sequence[str], sections: tuple[str, ...] = TRAIN_SECTIONS) -> tuple[Override, ...]:
+    """A run's --set items, as given, parsed."""
+    return parse_overrides(given, sections)
 
 
-def train_configs(args: dict[str, Any]) -> dict[str, Loaded[Any]]:
-    """The task, env and algorithm configs of a train run's arguments (`run.TrainArgs`)."""
-    ov = run_overrides(args)
-    return {"task": load_task(args["task_conf"], in_section(ov, "task")),
-            "env": load_env(args["env_conf"], in_section(ov, "env")),
-            "alg": load_algo(args["alg"], args["alg_conf"], in_section(ov, "alg"))}
+def train_configs(req: TrainRequest) -> dict[str, Loaded[Any]]:
+    """The task, env and algorithm configs of a train run, each with its --set items."""
+    ov = run_overrides(req.overrides)
+    return {"task": load_task(req.task_conf, in_section(ov, "task")),
+            "env": load_env(req.env_conf, in_section(ov, "env")),
+            "alg": load_algo(req.alg, req.alg_conf, in_section(ov, "alg"))}
 
 
-def override_record(given: list[str] | None, loaded: Mapping[str, Loaded[Any]]) -> dict[str, Any]:
+def override_record(given: Sequence[str], loaded: Mapping[str, Loaded[Any]]) -> dict[str, Any]:
     """exp_config.json's `overrides`: the --set items as given, and per config the field each set
     with its typed value (URB's key names resolved)."""
-    return {"given": list(given or []),
+    return {"given": list(given),
             "resolved": {kind: dict(lo.overridden) for kind, lo in loaded.items() if lo.overridden}}
 
 
-def train_override_record(args: dict[str, Any]) -> dict[str, Any]:
+def train_override_record(req: TrainRequest) -> dict[str, Any]:
     """`override_record` of a train run (task, env, algorithm and hybrid configs)."""
-    loaded = {**train_configs(args), "hybrid": load_hybrid(args["hybrid_conf"],
-                                                           in_section(run_overrides(args), "hybrid"))}
-    return override_record(args.get("overrides"), loaded)
+    loaded = {**train_configs(req), "hybrid": load_hybrid(req.hybrid_conf,
+                                                          in_section(run_overrides(req.overrides), "hybrid"))}
+    return override_record(req.overrides, loaded)
 
 
-def config_aliases(args: dict[str, Any]) -> dict[str, Any]:
+def config_aliases(req: TrainRequest) -> dict[str, Any]:
     """exp_config.json's `config_aliases`: per config, the file, URB's family, the aliases applied
     (URB key -> urb-jax key), the URB values given under them, and the keys ignored or derived."""
-    return {kind: loaded.resolution.record() for kind, loaded in train_configs(args).items()}
+    return {kind: loaded.resolution.record() for kind, loaded in train_configs(req).items()}
 
 
 def load_urb_file(path: str | Path) -> Loaded[Any]:

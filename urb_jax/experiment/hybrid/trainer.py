@@ -31,7 +31,6 @@ from urb_jax.experiment.hybrid.clock import IterationClock, needs_probe, probe_s
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns, maps_seeds
 from urb_jax.experiment.hybrid.memory import check_fits
 from urb_jax.experiment.hybrid.plan import (
-    MODES,
     AlgoConfig,
     HybridConfig,
     RoundPlan,
@@ -40,6 +39,7 @@ from urb_jax.experiment.hybrid.plan import (
     plan_rounds,
 )
 from urb_jax.experiment.protocol import PHASE_TEST, PHASE_TRAIN
+from urb_jax.experiment.request import MODES
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
