@@ -35,8 +35,11 @@ class CavPolicy(Protocol):
     """A CAV decision rule over the CAV axis [C] (CAVs in departure order) that may learn from
     authoritative days. `init` sees the env after mutation (its `human_init`: the trained humans)."""
 
-    name: str
-    uses_observation: bool
+    @property
+    def name(self) -> str: ...  # read-only: the policies are frozen dataclasses
+
+    @property
+    def uses_observation(self) -> bool: ...
 
     def init(self, key: jax.Array, env: RoutingEnv) -> Any: ...
 

@@ -22,7 +22,7 @@ state (every CAV's observation) and its single value is broadcast to all CAVs.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -90,7 +90,7 @@ def make_networks(config: PPOConfig, env: RoutingEnv, centralised: bool = False)
 
     def critic_apply(params: Any, obs: jnp.ndarray) -> jnp.ndarray:
         state = env.global_state(obs / scale)  # [..., C * D]
-        value = mlp.apply(params, state)  # [..., 1] or [..., C]
+        value = cast(jax.Array, mlp.apply(params, state))  # [..., 1] or [..., C]
         return jnp.broadcast_to(value, (*value.shape[:-1], n_cav))
 
     return actor, critic_init, critic_apply

@@ -4,7 +4,7 @@ per CAV (a leading [C] axis on every leaf); observation scaling."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import flax.linen as nn
 import jax
@@ -125,7 +125,8 @@ def make_agent_net(
             return net.init(key, jnp.zeros((n_cav, d)), od)
 
         def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
-            return net.apply(params, obs / scale, od if idx is None else od[idx])
+            # cast: flax types apply as output | (output, variables), the latter only with `mutable`
+            return cast(jax.Array, net.apply(params, obs / scale, od if idx is None else od[idx]))
     else:
         def init(key: jax.Array) -> Any:
             keys = jax.random.split(key, n_cav)
@@ -134,7 +135,7 @@ def make_agent_net(
         def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
             x = jnp.moveaxis(obs / scale, -2, 0)  # [C, ..., D]
             p, o = (params, od) if idx is None else (take_agents(params, idx), od[idx])
-            y = jax.vmap(lambda pi, xi, oi: net.apply(pi, xi, oi))(p, x, o)
+            y = cast(jax.Array, jax.vmap(lambda pi, xi, oi: net.apply(pi, xi, oi))(p, x, o))
             return jnp.moveaxis(y, 0, -2)
 
     return AgentNet(init, apply)
@@ -160,7 +161,7 @@ def make_per_cav_mlp(env: RoutingEnv, widths: Sequence[int], normalize: bool) ->
 
     def apply(params: Any, obs: jnp.ndarray, idx: jnp.ndarray | None = None) -> jnp.ndarray:
         x = jnp.moveaxis(obs / scale, -2, 0)
-        return jnp.moveaxis(jax.vmap(mlp.apply)(take_agents(params, idx), x), 0, -2)
+        return jnp.moveaxis(cast(jax.Array, jax.vmap(mlp.apply)(take_agents(params, idx), x)), 0, -2)
 
     return PerCavMLP(init, apply, mlp, scale)
 

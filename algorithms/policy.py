@@ -20,7 +20,7 @@ def masked(logits: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
     return jnp.where(mask, logits, NEG)
 
 
-def eps_greedy(key: jax.Array, q: jnp.ndarray, mask: jnp.ndarray, eps: jnp.ndarray) -> jnp.ndarray:
+def eps_greedy(key: jax.Array, q: jnp.ndarray, mask: jnp.ndarray, eps: float | jnp.ndarray) -> jnp.ndarray:
     """[..., K] values -> actions; with probability eps a uniform valid route, drawn for every
     entry of the values' leading axes (the mask broadcasts to them)."""
     k_rand, k_explore = jax.random.split(key)

@@ -7,6 +7,7 @@ Bad input fails here, in the caller's process, not twice in a worker.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -20,7 +21,8 @@ class DayBatch(NamedTuple):
     cavs: list[np.ndarray | None]  # [B] of [N] bool masks, or None: the Scenario's agent kinds
 
 
-def as_batch(choices: np.ndarray, seeds: list[int] | np.ndarray, is_cav: np.ndarray | None) -> DayBatch:
+def as_batch(choices: np.ndarray, seeds: int | Sequence[int] | np.ndarray, is_cav: np.ndarray | None
+             ) -> DayBatch:
     """Broadcast seeds and the CAV mask to one per day (shapes only; see `check_batch`)."""
     choices = np.asarray(choices)
     if choices.ndim != 2:

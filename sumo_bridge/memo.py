@@ -15,7 +15,9 @@ import dataclasses
 import logging
 import os
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -48,7 +50,7 @@ class MemoExecutor:
         self.simulated = 0
         self.reused = 0  # served from memory or disk
 
-    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
+    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: int | Sequence[int] | np.ndarray,
                  is_cav: np.ndarray | None = None) -> list[DayResult]:
         batch = as_batch(choices, seeds, is_cav)
         keys = [day_key(scenario, c, s, m, self.config)
@@ -59,7 +61,9 @@ class MemoExecutor:
                 todo[key] = i
         if todo:
             rows = list(todo.values())
-            mask_arg = None if batch.cavs[0] is None else np.stack([batch.cavs[i] for i in rows])
+            # every row has a mask or none has (as_batch)
+            mask_arg = None if batch.cavs[0] is None else np.stack(
+                cast("list[np.ndarray]", [batch.cavs[i] for i in rows]))
             days = self.inner.run_days(scenario, batch.choices[rows], [batch.seeds[i] for i in rows],
                                        is_cav=mask_arg)
             for key, day in zip(todo, days, strict=True):

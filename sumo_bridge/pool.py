@@ -18,6 +18,7 @@ import tempfile
 import traceback
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -57,7 +58,7 @@ def _worker_main(conn: Connection, config: SumoConfig, log_path: str) -> None:
 class _Worker:
     """One worker process and its pipe, as the pool sees it (a `scheduler.Slot`)."""
 
-    def __init__(self, ctx: mp.context.BaseContext, index: int, config: SumoConfig, log_path: Path) -> None:
+    def __init__(self, ctx: mp.context.SpawnContext, index: int, config: SumoConfig, log_path: Path) -> None:
         self.index = index
         self.log_path = log_path
         self.shm_dir = config.shm_dir if os.path.isdir(config.shm_dir) else tempfile.gettempdir()
@@ -84,7 +85,7 @@ class _Worker:
     def kill(self) -> None:
         if self.proc.is_alive():
             with contextlib.suppress(ProcessLookupError):
-                os.kill(self.proc.pid, signal.SIGKILL)
+                os.kill(cast(int, self.proc.pid), signal.SIGKILL)  # alive: started, so it has a pid
         self.proc.join(timeout=10)
         self.conn.close()
         for d in Path(self.shm_dir).glob(f"urbjax-sumo-{self.proc.pid}-*"):  # a killed worker's files

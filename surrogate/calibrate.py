@@ -56,7 +56,7 @@ class SumoSample:
     def __len__(self) -> int:
         return int(self.choices.shape[0])
 
-    def days(self, rows: Sequence[int]) -> SumoSample:
+    def days(self, rows: Sequence[int] | np.ndarray) -> SumoSample:
         """The sample of these days only."""
         return SumoSample(self.choices[rows], self.travel_time[rows], self.arrived[rows])
 

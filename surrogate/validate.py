@@ -6,6 +6,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -124,7 +125,7 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     surrogate, uncalibrated = predictor(params), predictor(p0)
     pred, pred0 = surrogate(c_te), uncalibrated(c_te)  # [D, N]
     fft = free_flow_times(scn, c_te)  # [D, N]
-    metrics = {"held_out": error_metrics(pred, te), "uncalibrated": error_metrics(pred0, te),
+    metrics: dict[str, Any] = {"held_out": error_metrics(pred, te), "uncalibrated": error_metrics(pred0, te),
                "train": error_metrics(surrogate(c_tr), tr)}
     dep, ratio, bias = _bias(scn, pred, te, fft)
     metrics.update(bias)

@@ -98,6 +98,7 @@ class _Sampler:
     def _weight(self, node: str) -> float:
         """exp(beta * potential), computed as JanuX does (numpy on one float), once per node."""
         pot = self.pot.get(node)
+        value: float | None
         if pot is None:
             value = 0.0  # np.exp(beta * inf) == 0: a dead end
         else:

@@ -17,6 +17,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
+from typing import Any
 
 import networkx as nx
 import numpy as np
@@ -126,11 +127,11 @@ class Scenario:
         n = int(self.od_route_len[od, k])
         return [self.edge_ids[e] for e in self.od_routes[od, k, :n]]
 
-    def with_agents(self, idx: np.ndarray, **overrides: object) -> Scenario:
+    def with_agents(self, idx: np.ndarray, **overrides: Any) -> Scenario:
         """The same network and routes with agents `idx`, in that order (a subset, a resampled
         demand); `overrides` replace per-agent fields afterwards (e.g. new ids for copies)."""
         arrays = ("agent_id", "agent_od", "agent_origin", "agent_destination", "agent_depart")
-        picked: dict[str, object] = {f: getattr(self, f)[idx] for f in arrays}
+        picked: dict[str, Any] = {f: getattr(self, f)[idx] for f in arrays}
         picked["agent_kind"] = tuple(self.agent_kind[i] for i in idx)
         return replace(self, **{**picked, **overrides})
 
@@ -189,7 +190,7 @@ def _load(path: Path) -> Scenario:
     with np.load(path) as data:
         meta = json.loads(data["_meta"].tobytes().decode())
         arrays = {k: data[k] for k in _ARRAY_FIELDS}
-    tuples = {k: tuple(meta[k]) for k in _TUPLE_FIELDS}
+    tuples: dict[str, Any] = {k: tuple(meta[k]) for k in _TUPLE_FIELDS}
     return Scenario(
         name=meta["name"], net_file=meta["net_file"], env_seed=meta["env_seed"],
         route_params=RouteParams(**meta["route_params"]), **tuples, **arrays,

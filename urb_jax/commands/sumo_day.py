@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
     batch = np.repeat(choices[None], args.days, axis=0)
     if args.log_dir:
         Path(args.log_dir).mkdir(parents=True, exist_ok=True)
+    ex: SumoPool | InProcessExecutor
     if args.workers > 0:
         ex = SumoPool(args.workers, config=cfg, log_dir=args.log_dir)
     else:

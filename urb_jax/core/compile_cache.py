@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any, cast
 
 import jax
 from jax.experimental.compilation_cache import compilation_cache
@@ -38,7 +39,7 @@ def enable_compile_cache() -> Path | None:
     """Turn the persistent cache on (idempotent; call it before the first compile so that every
     compile is cached); returns the directory in use, None when opted out. A cache directory the
     user gave JAX itself wins over urb-jax's and its settings are left alone."""
-    current = jax.config.jax_compilation_cache_dir
+    current = cast(Any, jax.config).jax_compilation_cache_dir
     if current and current not in _OWNED:
         return Path(current)
     path = compile_cache_path()
@@ -57,7 +58,7 @@ def enable_compile_cache() -> Path | None:
 def disable_compile_cache() -> None:
     """No persistent cache from here on in this process (the opt-out; tests); a cache directory
     the user gave JAX itself stays."""
-    if jax.config.jax_compilation_cache_dir in _OWNED:
+    if cast(Any, jax.config).jax_compilation_cache_dir in _OWNED:
         _use(None)
 
 
@@ -66,7 +67,7 @@ _OWNED: set[str] = set()  # cache dirs set here (a user's own JAX setting is nev
 
 def _use(path: str | None) -> None:
     """Point JAX's cache at `path` (None: off); JAX opens its cache once, so it is re-opened."""
-    if jax.config.jax_compilation_cache_dir == path:
+    if cast(Any, jax.config).jax_compilation_cache_dir == path:
         return
     compilation_cache.set_cache_dir(path)
     compilation_cache.reset_cache()

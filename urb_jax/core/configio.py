@@ -13,7 +13,7 @@ import typing
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, TypeVar, cast
 
 from urb_jax import configs
 from urb_jax.core.errors import ConfigError
@@ -155,7 +155,7 @@ def load_resolved(cls: type[T], path: str | Path, family: Family | None = None,
         source = f"{path} with --set {' '.join(o.given for o in overrides)}"
     resolved, resolution = resolve(data, family, source)
     config = from_dict(cls, resolved, source)
-    fields = {f.name for f in dataclasses.fields(cls)}
+    fields = {f.name for f in dataclasses.fields(cast(type, cls))}  # a dataclass: from_dict checked
     targets = [_target(o.key, family) for o in overrides]
     return Loaded(config, Path(path), resolution,
                   {t: getattr(config, t) for t in targets if t in fields})

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import cast
 
 from urb_jax import networks
 
@@ -26,7 +27,7 @@ def networks_search_path(networks_dir: str | os.PathLike | None = None) -> list[
     """Search order: explicit flag, then $URB_JAX_NETWORKS (os.pathsep-separated), then embedded."""
     path: list[Path] = []
     if networks_dir:
-        path.append(Path(absolute_dir(networks_dir)))
+        path.append(Path(cast(str, absolute_dir(networks_dir))))  # not None: networks_dir is set
     env = os.environ.get(NETWORKS_ENV, "")
     for part in env.split(os.pathsep):
         if part.strip():

@@ -79,7 +79,7 @@ def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: Ro
         shutil.rmtree(d)  # a partial one (no meta.json) from a kill or a full disk
     d.mkdir(parents=True)
     leaves = {f"{i:05d}": np.asarray(x) for i, x in enumerate(jax.tree_util.tree_leaves(state))}
-    arrays = {}
+    arrays: dict[str, np.ndarray] = {}
     for i, sample in enumerate(samples):
         arrays |= {f"choices_{i}": sample.choices, f"travel_time_{i}": sample.travel_time,
                    f"arrived_{i}": sample.arrived}

@@ -27,7 +27,7 @@ Semantics (docs/jaxmarl.md):
 from __future__ import annotations
 
 from functools import partial
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -68,7 +68,7 @@ class JaxMARLRoutingEnv(MultiAgentEnv):
         self.scale = obs_scale(env) if normalize_obs else np.ones(env.obs_size, np.float32)  # [D]
         ods = env.cav_od
         self.od_rank = np.unique(ods, return_inverse=True)[1] if od_onehot else None  # [C]
-        self.n_features = env.obs_size + (int(self.od_rank.max()) + 1 if od_onehot else 0)
+        self.n_features = env.obs_size + (int(cast(np.ndarray, self.od_rank).max()) + 1 if od_onehot else 0)
         self.observation_spaces = {a: Box(0.0, np.inf, (self.n_features,)) for a in self.agents}
         self.action_spaces = {a: Discrete(env.n_actions) for a in self.agents}
 
@@ -85,7 +85,8 @@ class JaxMARLRoutingEnv(MultiAgentEnv):
     def as_dict(self, x: jnp.ndarray) -> Obs:
         return {a: x[i] for i, a in enumerate(self.agents)}
 
-    def get_obs(self, state: RoutingState) -> Obs:
+    # override: JaxMARL types its methods with its own envs' State; this env's state is RoutingState
+    def get_obs(self, state: RoutingState) -> Obs:  # type: ignore[override]
         return self.as_dict(self.features(self.env.observe(state.day, state.day.cav_actions)))
 
     # ---- the MultiAgentEnv interface
@@ -104,7 +105,7 @@ class JaxMARLRoutingEnv(MultiAgentEnv):
             state, obs = reset_state, self.get_obs(reset_state)
         return obs, state, rewards, dones, infos
 
-    def step_env(self, key: jax.Array, state: RoutingState, actions: dict[str, jnp.ndarray]
+    def step_env(self, key: jax.Array, state: RoutingState, actions: dict[str, jnp.ndarray]  # type: ignore[override]
                  ) -> tuple[Obs, RoutingState, dict, dict, dict]:
         # [C]; an action may come as shape () or (1,) (JaxMARL's unbatchify gives (1,))
         cav_actions = jnp.stack([jnp.asarray(actions[a]).reshape(()) for a in self.agents]).astype(jnp.int32)

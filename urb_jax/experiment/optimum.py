@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
@@ -211,7 +211,7 @@ def best_response(prob: Problem, params: Params, choices: np.ndarray, cfg: Searc
         improving = gain > 1e-4
         if not improving.any():
             break
-        best = {}
+        best: dict[int, int] = {}
         for m in np.flatnonzero(improving)[np.argsort(-gain[improving])]:
             best.setdefault(int(moves[m, 0]), int(moves[m, 1]))
         agents = np.asarray(sorted(best))
@@ -267,8 +267,9 @@ class Refiner:
     def _day(self, label: str, choices: np.ndarray, res: DayResult) -> SumoDay:
         tt = group_times(np.asarray(res.travel_time, np.float64), self.prob.is_cav)
         dur = group_times(np.nan_to_num(np.asarray(res.duration, np.float64) / 60.0), self.prob.is_cav)
-        return SumoDay(label, np.asarray(choices).copy(), float(tt @ self.prob.w),
-                       tuple(map(float, tt)), tuple(map(float, dur)))
+        return SumoDay(label, np.asarray(choices).copy(), float(tt @ self.prob.w),  # group_times: 3 each
+                       cast("tuple[float, float, float]", tuple(map(float, tt))),
+                       cast("tuple[float, float, float]", tuple(map(float, dur))))
 
     def refit(self) -> None:
         """The smooth model on a fixed-size draw of the days (one compile), then the residual on all."""
@@ -313,6 +314,7 @@ class Refiner:
         top = np.argsort(self.prob.objective(self.params, days))[:self.cfg.screened_moves]
         measured = self.measure_all(label, list(days[top]))
         better = [m for m, d in zip(top, measured, strict=True) if d.objective < best.objective]
+        first: np.ndarray | list[int]
         _, first = np.unique(moves[better, 0], return_index=True) if better else (None, [])
         if len(first) > 1:
             together = best.choices.copy()
@@ -328,7 +330,7 @@ def optimum_search(prob: Problem, cfg: SearchConfig, rng: np.random.Generator
     single-CAV moves from the best SUMO day so far, so SUMO measures what the model proposes before
     it proposes more), and a global one (relaxed descent from it, AON and random starts, each
     polished by local search; the best on the surrogate)."""
-    def search(params: Params, current: np.ndarray) -> list[np.ndarray]:
+    def search(params: Params, current: np.ndarray) -> list[tuple[str, np.ndarray]]:
         trust = max(cfg.trust_moves, len(prob.cav_index) // 20)
         step = local_search(prob, params, current, trust, together=False)
         starts = [current, prob.aon]

@@ -20,7 +20,7 @@ its group's later rows, O(N) at most, instead of recomputing all N observations 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 import gymnasium
 import jax
@@ -86,7 +86,7 @@ class _SumoDays:
         self._observations = IncrementalObservations(self.spec)
         high = np.finfo(np.float32).max
         self._obs_space = gymnasium.spaces.Box(0.0, high, shape=(self.spec.size,), dtype=np.float32)
-        self._act_space = gymnasium.spaces.Discrete(scenario.k)
+        self._act_space: gymnasium.spaces.Discrete = gymnasium.spaces.Discrete(scenario.k)
         self.day = self.task.human_learning_episodes
         self._key = jax.random.PRNGKey(env_seed)
         self.last_result: Any = None
@@ -164,7 +164,7 @@ class UrbAECEnv(_SumoDays, AECEnv):
         self._cumulative_rewards = dict.fromkeys(self.agents, 0.0)
         self.terminations = dict.fromkeys(self.agents, False)
         self.truncations = dict.fromkeys(self.agents, False)
-        self.infos = {a: {} for a in self.agents}
+        self.infos: dict[str, dict[str, Any]] = {a: {} for a in self.agents}
         self._agent_selector = AgentSelector(self.agents)
         self.agent_selection = self._agent_selector.reset() if self.agents else None
         self._rewards_shown = False
@@ -173,7 +173,7 @@ class UrbAECEnv(_SumoDays, AECEnv):
         return self._observations.observe_one(int(self.cav_index[self._pos[agent]]))
 
     def step(self, action: int | None) -> None:
-        agent = self.agent_selection
+        agent = cast(str, self.agent_selection)  # None only once every agent has left
         if self.terminations[agent] or self.truncations[agent]:
             self._dead_step(action)
             return
@@ -189,13 +189,13 @@ class UrbAECEnv(_SumoDays, AECEnv):
             self._accumulate_rewards()
             self._rewards_shown = True
 
-    def _dead_step(self, action: None) -> None:
+    def _dead_step(self, action: int | None) -> None:
         """PettingZoo's `_was_dead_step` for this env's one way to die, in O(1) rather than O(C):
         every CAV terminates at once and leaves in turn order, so the next to step is the first
         left; the first dead step clears `rewards` (cumulative rewards stay until each leaves)."""
         if action is not None:
             raise ValueError("when an agent is dead, the only valid action is None")
-        agent = self.agent_selection
+        agent = cast(str, self.agent_selection)
         for table in (self.terminations, self.truncations, self.rewards, self._cumulative_rewards,
                       self.infos):
             del table[agent]

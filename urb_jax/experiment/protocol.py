@@ -113,6 +113,7 @@ def _cav_days(game: RoutingEnv, policy: CavPolicy, pstate: Any, days: range, las
     root = jax.random.PRNGKey(env_seed)
     fft = jnp.asarray(scn.fft, dtype=jnp.float32)
     humans = game.human_init
+    assert humans is not None  # run_experiment builds the game with the trained humans
     # Before the first CAV day, as env.reset: yesterday's CAV routes AON, times free-flow.
     yesterday = jnp.asarray(aon_routes(scn.fft, scn.route_valid)[cav_index])
     yesterday_times = jnp.asarray(scn.fft_full.min(axis=1))

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import pandas as pd
 
@@ -37,7 +37,8 @@ def seed_groups(results_dir: Path, seeds: dict[str, int]) -> list[str]:
         lines.append(f"{label}: {text}")
         left.append(seconds)
     if len(groups) > 1 and None not in left:
-        lines.append(f"the run: about {fmt_duration(sum(left))} left, plus the test days")
+        known = cast("list[float]", left)  # no None in it
+        lines.append(f"the run: about {fmt_duration(sum(known))} left, plus the test days")
     return lines
 
 

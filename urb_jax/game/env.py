@@ -186,10 +186,12 @@ class RoutingEnv:
                              "of a measured day (step_with_times(..., model=env.model_externalities(params, "
                              "choices)))")
         if self.reward_credit == "marginal":
+            assert model is not None  # uses_model: refused above when missing
             rewards_all = credit_rewards(times, is_cav, self.reward_coefficients, model[0])
         else:
             rewards_all = cav_rewards(times, is_cav, self.reward_coefficients)
         if self.marginal_cost_beta != 0.0:
+            assert model is not None  # uses_model: refused above when missing
             rewards_all = marginal_cost_rewards(rewards_all, model[0], self.marginal_cost_beta)
         humans = end_day(k_learn, state.humans, choices, times, self.human_params, self.is_cav,
                          self.humans_learn)

@@ -23,7 +23,7 @@ Models: `gawron` (above), `culo` (cumulative: C_a <- C_a + alpha * t_hat), `weig
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -101,7 +101,7 @@ def act(
     valid = jnp.isfinite(state.cost)
     k_choice, k_explore, k_uniform = jax.random.split(key, 3)
     if params.model == "aon":
-        return aon_routes(fft if fft is not None else state.cost, valid)
+        return cast(jax.Array, aon_routes(fft if fft is not None else state.cost, valid))  # jax in, jax out
     uniform = jax.random.categorical(k_uniform, jnp.where(valid, 0.0, -jnp.inf), axis=1)
     if params.model == "random":
         return uniform.astype(jnp.int32)

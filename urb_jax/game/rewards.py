@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from urb_jax.core.errors import ConfigError
 
@@ -38,7 +39,7 @@ def behaviour_coefficients(behaviour: str | Sequence[float]) -> tuple[float, flo
     coeffs = tuple(float(x) for x in behaviour)
     if len(coeffs) != 4:
         raise ConfigError(f"custom av_behavior needs 4 numbers [own, cav_group, humans, all], got {coeffs}")
-    return coeffs  # type: ignore[return-value]
+    return coeffs
 
 
 def _masked_mean(x: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
@@ -68,7 +69,7 @@ CREDITS = ("group", "marginal")
 
 
 def externalities(travel_time: Callable[[jnp.ndarray], jnp.ndarray], choices: jnp.ndarray,
-                  is_cav: jnp.ndarray, k: int) -> tuple[jnp.ndarray, jnp.ndarray]:
+                  is_cav: np.ndarray | jnp.ndarray, k: int) -> tuple[jnp.ndarray, jnp.ndarray]:
     """(externalities [3, N], model times [N]) of a day's choices [N] under a differentiable day
     model `travel_time(probabilities [N, K]) -> minutes [N]`, linear in each agent's own row.
 

@@ -258,7 +258,8 @@ def write_plots(folder: Path, records: pd.DataFrame, human_days: int, training_d
     fig, ax = plt.subplots(figsize=(7, 4))
     if len(test):
         per_agent = test.groupby(["agent", "group"])["travel_time"].mean().reset_index()
-        bins = np.linspace(per_agent["travel_time"].min(), per_agent["travel_time"].max() + 1e-6, 40)
+        # Any: an array, which matplotlib's stubs leave out of hist's bins (Sequence[float])
+        bins: Any = np.linspace(per_agent["travel_time"].min(), per_agent["travel_time"].max() + 1e-6, 40)
         for g, color in (("HDV", "tab:blue"), ("CAV", "tab:red")):
             vals = per_agent.loc[per_agent["group"] == g, "travel_time"]
             if len(vals):

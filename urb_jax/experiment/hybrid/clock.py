@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import jax
 import numpy as np
@@ -142,5 +142,5 @@ def _compiled(fn: Callable[..., Any], args: tuple[Any, ...], programs: dict[Any,
     sig = (id(fn), jax.tree_util.tree_structure(args),
            tuple((x.shape, x.dtype, getattr(x, "weak_type", False)) for x in jax.tree_util.tree_leaves(args)))
     if sig not in programs:
-        programs[sig] = fn.lower(*args).compile()
+        programs[sig] = cast(Any, fn).lower(*args).compile()  # fn: a jax.jit function (has .lower)
     return programs[sig]

@@ -126,13 +126,14 @@ def learner_for(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridCo
     """The algorithm's learner with num_envs and schedule lengths fitted to the hybrid budget:
     epsilon schedules (linear over n_iters, or IQL*'s per-update decay) end where URB's end."""
     fields = {f.name for f in dataclasses.fields(alg_config)}
+    by_name: Any = alg_config  # the fields read below are checked by name (`fields`), not by type
     upd: dict[str, Any] = {"num_envs": cfg.num_envs}
     sumo_updates = cfg.sumo_updates if mode != "surrogate" else 0
     if "agent_frames_per_batch" in fields:  # TorchRL family: epsilon schedules span n_iters iterations
-        per_iter = alg_config.agent_frames_per_batch
+        per_iter = by_name.agent_frames_per_batch
         upd["n_iters"] = max(1, math.ceil(n_rounds * (n_iters_round * per_iter + sumo_updates) / per_iter))
     if "eps_decay" in fields:  # IQL*: URB decays once per update over num_episodes updates
         updates = max(1, n_rounds * (n_iters_round + sumo_updates))
-        upd["eps_decay"] = float(alg_config.eps_decay ** (alg_config.num_episodes / updates))
+        upd["eps_decay"] = float(by_name.eps_decay ** (by_name.num_episodes / updates))
     alg_config = dataclasses.replace(alg_config, **upd)
     return algorithm(alg).make_learner(alg_config, env), alg_config

@@ -343,6 +343,7 @@ class HybridTrainer:
         n, R = g.scn.n_agents, g.R
         keys_act, keys_step = g.fns.split_p(k_act), g.fns.split_p(k_step)  # [S, P, 2]
         real, parts = s.real, []
+        choices: jax.Array | np.ndarray  # the jitted act's, then numpy (np.asarray)
         for c in range(0, g.P, R):
             obs, actions, choices = g.fns.act_explore(s.runner, keys_act[:, c:c + R], real)
             choices = np.asarray(choices)  # [S, R, N]
@@ -404,6 +405,7 @@ class HybridTrainer:
         g, s = self.g, self.state
         n, b = g.scn.n_agents, min(g.R, g.E - start_day)
         kt = jax.vmap(lambda k, d=start_day: jax.random.split(jax.random.fold_in(k, d)))(g.keys.test)
+        choices: jax.Array | np.ndarray  # the jitted act's, then numpy (np.asarray)
         obs, actions, choices = g.fns.act_greedy(s.runner, g.fns.split_p(kt[:, 0])[:, :g.R], s.real)
         choices = np.asarray(choices)[:, :b]  # [S, b, N]
         results = executor.run_days(g.scn, choices.reshape(g.S * b, n), [g.env_seed] * (g.S * b),
