@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from urb_jax.algorithms.registry import algorithm, canonical
-from urb_jax.city.network import DEFAULT_NETWORK
+from urb_jax.core.choices import DEFAULT_NETWORK
 from urb_jax.core.configio import Loaded, in_section
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.round_log import check_logger

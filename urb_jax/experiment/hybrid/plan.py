@@ -16,7 +16,6 @@ from urb_jax.core.configio import Loaded, Override, find_config, load_resolved
 from urb_jax.core.errors import ConfigError
 from urb_jax.game.env import RoutingEnv
 
-MODES = ("hybrid", "sumo", "surrogate")
 SEED_AXES = ("auto", "vmap", "map")  # how a group's seeds share one program (hybrid/fns.py)
 # The config of any algorithm of urb_jax.algorithms.registry.ALGORITHMS.
 AlgoConfig = IQLConfig | PPOConfig | MixerConfig | IQLStarConfig | IPPOStarConfig

@@ -23,6 +23,7 @@ import numpy as np
 from urb_jax.algorithms.learner import Day
 from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.scenario import Scenario
+from urb_jax.core.choices import MODES
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
@@ -31,7 +32,6 @@ from urb_jax.experiment.hybrid.clock import IterationClock, needs_probe, probe_s
 from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns, maps_seeds
 from urb_jax.experiment.hybrid.memory import check_fits
 from urb_jax.experiment.hybrid.plan import (
-    MODES,
     AlgoConfig,
     HybridConfig,
     RoundPlan,
