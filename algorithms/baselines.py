@@ -25,6 +25,7 @@ import numpy as np
 
 from urb_jax.algorithms.networks import take_agents
 from urb_jax.algorithms.policy import masked
+from urb_jax.core.choices import BASELINE_MODELS
 from urb_jax.core.errors import ConfigError
 from urb_jax.game.env import RoutingEnv
 from urb_jax.game.humans import HumanParams, HumanState, act_jit, aon_routes, learn_jit
@@ -129,7 +130,9 @@ class FixedPolicy(_FixedRule):
         return self.policy(key, obs, idx)
 
 
-BASELINES: dict[str, type[CavPolicy]] = {"aon": AonPolicy, "random": RandomPolicy, "human": HumanPolicy}
+# The names are urb_jax.core.choices.BASELINE_MODELS (`urb-jax baseline --model`, read without JAX).
+BASELINES: dict[str, type[CavPolicy]] = dict(zip(BASELINE_MODELS, (AonPolicy, RandomPolicy, HumanPolicy),
+                                                 strict=True))
 
 
 def make_baseline(name: str) -> CavPolicy:

@@ -22,6 +22,7 @@ from urb_jax.algorithms.configs import (
     PPOConfig,
 )
 from urb_jax.algorithms.learner import Learner
+from urb_jax.core.choices import ALGORITHM_URB_NAMES, URB_ALIASES
 from urb_jax.core.configio import Loaded, Override, find_config, load_resolved
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.urb_keys import ALGO_FAMILIES, algo_family
@@ -34,22 +35,19 @@ class Algorithm(NamedTuple):
     urb: str  # URB's algorithm (its config/algo_config folder) whose configs this one reads
 
 
-ALGORITHMS: dict[str, Algorithm] = {
-    "iql": Algorithm(iql.make_learner, IQLConfig, "iql_torchrl"),
-    "ippo": Algorithm(ippo.make_learner, PPOConfig, "ippo_torchrl"),
-    "mappo": Algorithm(mappo.make_learner, PPOConfig, "mappo_torchrl"),
-    "qmix": Algorithm(qmix.make_learner, MixerConfig, "qmix_torchrl"),
-    "vdn": Algorithm(vdn.make_learner, MixerConfig, "vdn_torchrl"),
-    "iql_star": Algorithm(iql_star.make_learner, IQLStarConfig, "iql"),
-    "ippo_star": Algorithm(ippo_star.make_learner, IPPOStarConfig, "ippo"),
+_LEARNERS: dict[str, tuple[Callable[[Any, RoutingEnv], Learner], type]] = {
+    "iql": (iql.make_learner, IQLConfig),
+    "ippo": (ippo.make_learner, PPOConfig),
+    "mappo": (mappo.make_learner, PPOConfig),
+    "qmix": (qmix.make_learner, MixerConfig),
+    "vdn": (vdn.make_learner, MixerConfig),
+    "iql_star": (iql_star.make_learner, IQLStarConfig),
+    "ippo_star": (ippo_star.make_learner, IPPOStarConfig),
 }
-
-
-# URB's names accepted as --alg where they name one urb-jax algorithm. URB's bandit `iql` / `ippo`
-# are not among them: `iql` / `ippo` have always been urb-jax's TorchRL-style IQL / IPPO (their URB
-# names are iql_torchrl / ippo_torchrl); the bandit ones are `iql_star` / `ippo_star` (docs/algorithms.md).
-URB_ALIASES: dict[str, str] = {alg.urb: name for name, alg in ALGORITHMS.items()
-                               if alg.urb not in ALGORITHMS}
+# The ids and their URB names are urb_jax.core.choices.ALGORITHM_URB_NAMES (the CLI's --alg choices,
+# read without importing JAX), as is URB_ALIASES, URB's names accepted as --alg.
+ALGORITHMS: dict[str, Algorithm] = {name: Algorithm(*_LEARNERS[name], urb)
+                                    for name, urb in ALGORITHM_URB_NAMES.items()}
 
 
 def canonical(name: str) -> str:

@@ -1,4 +1,4 @@
-"""Stand-in congestion model for tests and benchmarks until the calibrated surrogate lands.
+"""Stand-in congestion model for tests and benchmarks that time the learner, not the environment.
 
 Static BPR on route-edge flows over one departure window: flow_e = number of agents whose route
 uses edge e, t_e = t0_e * (1 + alpha * (flow_e / cap_e)^power) with cap_e = capacity (veh/h) x

@@ -22,9 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from urb_jax.city.network import DAY_LIMIT_S
-
-STUCK_RULES = ("urb", "routerl", "sumo")
-STUCK_PENALTIES = ("elapsed", "urb")
+from urb_jax.core.choices import STUCK_PENALTIES, STUCK_RULES
 
 
 @dataclass(frozen=True)

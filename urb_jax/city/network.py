@@ -19,7 +19,6 @@ from urb_jax.city.netxml import NetData, read_net
 from urb_jax.core.errors import NetworkError
 from urb_jax.core.paths import NETWORKS_ENV, networks_search_path
 
-DEFAULT_NETWORK = "urb_grid"
 DAY_LIMIT_S = 6 * 3600  # a simulated day ends here (SumoConfig.max_sim_time_s): departures must come before
 AGENT_COLUMNS = ("id", "origin", "destination", "start_time", "kind")
 AGENT_KINDS = ("Human", "AV")

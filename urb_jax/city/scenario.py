@@ -22,7 +22,7 @@ from typing import Any
 import networkx as nx
 import numpy as np
 
-from urb_jax.city.network import DEFAULT_NETWORK, Demand, NetworkFiles, find_network, read_demand
+from urb_jax.city.network import Demand, NetworkFiles, find_network, read_demand
 from urb_jax.city.netxml import NetData, read_net
 from urb_jax.city.routes import (
     ODRoutes,
@@ -33,6 +33,7 @@ from urb_jax.city.routes import (
     unroutable,
 )
 from urb_jax.core.atomic import write_npz
+from urb_jax.core.choices import DEFAULT_NETWORK
 from urb_jax.core.errors import NetworkError, RouteError
 from urb_jax.core.paths import cache_dir
 from urb_jax.core.version import __version__

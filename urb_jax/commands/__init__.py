@@ -12,6 +12,7 @@ COMMANDS = [
     "urb_jax.commands.leaderboard",
     "urb_jax.commands.export_day",
     "urb_jax.commands.export_urb",
+    "urb_jax.commands.headroom",
     "urb_jax.commands.metrics",
     "urb_jax.commands.train",
     "urb_jax.commands.optimum",

@@ -7,13 +7,12 @@ import argparse
 import json
 
 from urb_jax.commands.common import add_network_flags, add_set_flag
-from urb_jax.experiment.request import BaselineRequest
-from urb_jax.experiment.run import BASELINE_SECTIONS, run_baseline
+from urb_jax.core.choices import BASELINE_MODELS, BASELINE_SECTIONS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("baseline", help="run a baseline experiment (every day simulated in SUMO)")
-    parser.add_argument("--model", default="aon", choices=["aon", "random", "human"],
+    parser.add_argument("--model", default="aon", choices=BASELINE_MODELS,
                         help="CAV baseline policy (default aon)")
     add_network_flags(parser)
     parser.add_argument("--task-conf", default="config1",
@@ -35,6 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from urb_jax.experiment.request import BaselineRequest
+    from urb_jax.experiment.run import run_baseline
+
     out = run_baseline(BaselineRequest(
         model=args.model, net=args.net, task_conf=args.task_conf, env_conf=args.env_conf,
         alg_conf=args.alg_conf, env_seed=args.env_seed, exp_id=args.id, networks_dir=args.networks_dir,

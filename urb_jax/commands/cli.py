@@ -1,4 +1,9 @@
-"""`urb-jax` entry point: subcommands live in urb_jax/commands/."""
+"""`urb-jax` entry point: subcommands live in urb_jax/commands/.
+
+Building the parser imports argparse-level modules only (each command's handler imports what it
+runs), so `urb-jax --help`, `urb-jax CMD --help` and a bad argument answer without loading JAX
+(tests/test_cli_help.py).
+"""
 
 from __future__ import annotations
 
@@ -8,9 +13,7 @@ import logging
 import sys
 
 from urb_jax.commands import COMMANDS
-from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.core.interrupt import InterruptedRunError, handle_interrupts, leave_interrupted
 from urb_jax.core.version import __version__
 
 
@@ -32,6 +35,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    from urb_jax.core.compile_cache import enable_compile_cache  # imports JAX: after parsing
+    from urb_jax.core.interrupt import InterruptedRunError, handle_interrupts, leave_interrupted
+
     enable_compile_cache()  # every command compiles once per machine, not once per process
     with handle_interrupts():
         try:

@@ -1,10 +1,15 @@
-"""Flags shared by several subcommands, so they read the same everywhere."""
+"""Flags shared by several subcommands, so they read the same everywhere.
+
+Every command module imports only this, argparse and urb_jax.core.choices at its top: building the
+parser (`urb-jax --help`, `urb-jax CMD --help`) imports no JAX, flax, pandas or SUMO; a command's
+handler imports what it runs (tests/test_cli_help.py).
+"""
 
 from __future__ import annotations
 
 import argparse
 
-from urb_jax.city.network import DEFAULT_NETWORK
+from urb_jax.core.choices import DEFAULT_NETWORK
 from urb_jax.core.paths import NETWORKS_ENV
 
 

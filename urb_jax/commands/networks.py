@@ -4,10 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from urb_jax.city.network import available_networks, describe
 from urb_jax.commands.common import add_networks_dir
-from urb_jax.core.errors import UrbJaxError
-from urb_jax.core.paths import networks_search_path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,6 +16,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_list(args: argparse.Namespace) -> int:
+    from urb_jax.city.network import available_networks, describe
+    from urb_jax.core.errors import UrbJaxError
+    from urb_jax.core.paths import networks_search_path
+
     print("search path: " + " -> ".join(str(p) for p in networks_search_path(args.networks_dir)))
     rows = [("network", "agents", "OD pairs", "edges", "found in")]
     for files in available_networks(args.networks_dir):

@@ -6,7 +6,6 @@ import argparse
 import json
 import time
 
-from urb_jax.city.scenario import load_scenario
 from urb_jax.commands.common import add_network_flags
 
 
@@ -20,6 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from urb_jax.city.scenario import load_scenario
+
     t0 = time.perf_counter()
     scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed,
                         use_cache=not args.no_cache, drop_unroutable=args.drop_unroutable)

@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
 from urb_jax.commands.common import add_network_flags
+from urb_jax.core.choices import STUCK_PENALTIES, STUCK_RULES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,14 +17,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--seed", type=int, default=None, help="SUMO --seed (default: --env-seed)")
     parser.add_argument("--days", type=int, default=1)
     parser.add_argument("--workers", type=int, default=0, help="pool processes (0: in this process)")
-    parser.add_argument("--stuck-rule", default="urb", choices=["urb", "routerl", "sumo"])
-    parser.add_argument("--stuck-penalty", default="elapsed", choices=["elapsed", "urb"])
+    parser.add_argument("--stuck-rule", default="urb", choices=STUCK_RULES)
+    parser.add_argument("--stuck-penalty", default="elapsed", choices=STUCK_PENALTIES)
     parser.add_argument("--log-dir", default=None, help="folder for SUMO's warnings (one log per worker)")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
+
+    import numpy as np
 
     from urb_jax.city.scenario import load_scenario
     from urb_jax.sumo_bridge import ARRIVED, InProcessExecutor, SumoConfig, SumoPool

@@ -6,23 +6,20 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
-from urb_jax.algorithms.registry import ALGORITHMS, URB_ALIASES
 from urb_jax.commands.common import add_network_flags, add_set_flag
-from urb_jax.core.errors import UrbJaxError
-from urb_jax.experiment.dry_run import describe, plan_train
-from urb_jax.experiment.request import MODES, ResumeRequest, TrainRequest
-from urb_jax.experiment.round_log import LOGGERS
-from urb_jax.experiment.run import RunResult, resume_train, run_train
-from urb_jax.experiment.urb_configs import TRAIN_SECTIONS
+from urb_jax.core.choices import ALGORITHM_URB_NAMES, EXECUTORS, LOGGERS, MODES, TRAIN_SECTIONS, URB_ALIASES
+from urb_jax.experiment.request import ResumeRequest, TrainRequest
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing
+if TYPE_CHECKING:
+    from urb_jax.experiment.run import RunResult
 
 METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_learning", "delta_V")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("train", help="train CAV policies (hybrid surrogate + SUMO; metrics from SUMO)")
-    parser.add_argument("--alg", default="iql", choices=(*ALGORITHMS, *URB_ALIASES),
+    parser.add_argument("--alg", default="iql", choices=(*ALGORITHM_URB_NAMES, *URB_ALIASES),
                         help="algorithm (default iql, URB's iql_torchrl; URB's bandit iql is iql_star, its "
                              "ippo ippo_star; URB's *_torchrl names are accepted: docs/experiment.md)")
     add_network_flags(parser)
@@ -55,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--log", choices=LOGGERS, default=None,
                         help="also log each round (rounds.csv's values) live to results/<id>/tensorboard/ "
                              "(needs pip install 'urb-jax[tensorboard]'); --resume keeps the recorded choice")
-    parser.add_argument("--executor", choices=("pool", "ray"), default=None,
+    parser.add_argument("--executor", choices=EXECUTORS, default=None,
                         help="where SUMO days run: pool (default; local processes) or ray (a Ray cluster, "
                              "pip install 'urb-jax[ray]'); --resume uses the recorded one unless given")
     parser.add_argument("--ray-address", default=None, help="Ray cluster: 'auto' or 'ray://host:port' "
@@ -87,6 +84,8 @@ def resume_request_of(args: argparse.Namespace) -> ResumeRequest:
 
 
 def run(args: argparse.Namespace) -> int:
+    from urb_jax.experiment.run import resume_train, run_train
+
     if args.dry_run:
         return dry_run(args)
     outs = resume_train(resume_request_of(args)) if args.resume else run_train(request_of(args))
@@ -108,6 +107,9 @@ def run(args: argparse.Namespace) -> int:
 
 def dry_run(args: argparse.Namespace) -> int:
     """Print the experiment `run` would start; errors reach the CLI as exit code 2 with the reason."""
+    from urb_jax.core.errors import UrbJaxError
+    from urb_jax.experiment.dry_run import describe, plan_train
+
     if args.resume:
         raise UrbJaxError("--dry-run checks a new run's configs; --resume continues a recorded run whose "
                           "configs were checked when it started. Fix: drop one of the two flags.")
@@ -147,6 +149,8 @@ def aon_duration(out: RunResult) -> str:
 def seed_summary(outs: list[RunResult]) -> str | None:
     """One line over the seeds of a run, in the terms of the quality bar: mean and sd of t_CAV, how
     many seeds are at or below AON on their test humans, and how many beat t_pre (WR)."""
+    import numpy as np
+
     done = [o for o in outs if o.metrics]
     if len(done) < 2:
         return None

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
-from urb_jax.city.scenario import load_scenario
 from urb_jax.commands.common import add_network_flags
 
 
@@ -25,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from urb_jax.city.scenario import load_scenario
     from urb_jax.surrogate.validate import ValidationConfig, validate
 
     scn = load_scenario(args.net, networks_dir=args.networks_dir, env_seed=args.env_seed,

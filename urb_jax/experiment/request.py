@@ -15,11 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from urb_jax.core.choices import DEFAULT_NETWORK, EXECUTORS, MODES
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.paths import absolute_dir
-
-MODES = ("hybrid", "sumo", "surrogate")  # how training days are made (docs/hybrid.md)
-EXECUTORS = ("pool", "ray")  # where SUMO days run
 
 
 def _seeds(seeds: Sequence[int]) -> tuple[int, ...]:
@@ -82,7 +80,6 @@ class TrainRequest:
         """The request as a run records it: URB's algorithm names as urb-jax ids, the default
         network named, config files and the networks folder as absolute paths."""
         from urb_jax.algorithms.registry import canonical  # the registry imports every learner
-        from urb_jax.city.network import DEFAULT_NETWORK
 
         return dataclasses.replace(
             self, alg=canonical(self.alg), net=self.net or DEFAULT_NETWORK,

@@ -16,9 +16,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from urb_jax.core.choices import LOGGERS
 from urb_jax.core.errors import UrbJaxError
 
-LOGGERS = ("tensorboard",)
 TENSORBOARD_DIR = "tensorboard"
 RoundRows = Callable[[list[dict[str, float]]], None]  # one rounds.csv row per seed
 

@@ -25,8 +25,8 @@ import numpy as np
 from urb_jax.algorithms.baselines import CavPolicy, make_baseline
 from urb_jax.algorithms.registry import load_algo_config, load_baseline_config
 from urb_jax.city.demand import scale_demand
-from urb_jax.city.network import DEFAULT_NETWORK
 from urb_jax.city.scenario import Scenario, load_scenario
+from urb_jax.core.choices import BASELINE_SECTIONS, DEFAULT_NETWORK
 from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.configio import in_section, to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
@@ -558,9 +558,6 @@ def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, A
     with _stops_cleanly([folder], resumable=False):
         return _run_baseline_days(folder, config, scn, task, env, policy, req.env_seed, day_fn, results_dir,
                                   human_phase_from, req.progress, t0)
-
-
-BASELINE_SECTIONS = ("task", "env", "alg")  # --set SECTION.KEY=VALUE of `urb-jax baseline`
 
 
 def _baseline_configs(req: BaselineRequest, task_overrides: dict[str, Any] | None

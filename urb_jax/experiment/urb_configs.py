@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from urb_jax.algorithms.registry import load_algo, load_urb_algo
+from urb_jax.core.choices import TRAIN_SECTIONS
 from urb_jax.core.configio import Loaded, Override, in_section, parse_overrides
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.hybrid.plan import load_hybrid
@@ -22,7 +23,6 @@ from urb_jax.game.config import load_env, load_task
 
 CONFIG_ALIASES_KEY = "config_aliases"
 OVERRIDES_KEY = "overrides"
-TRAIN_SECTIONS = ("task", "env", "alg", "hybrid")  # --set SECTION.KEY=VALUE of `urb-jax train`
 
 
 def run_overrides(given: Sequence[str], sections: tuple[str, ...] = TRAIN_SECTIONS) -> tuple[Override, ...]:

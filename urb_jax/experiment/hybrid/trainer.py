@@ -23,6 +23,7 @@ import numpy as np
 from urb_jax.algorithms.learner import Day
 from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.scenario import Scenario
+from urb_jax.core.choices import MODES
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
 from urb_jax.experiment.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
@@ -39,7 +40,6 @@ from urb_jax.experiment.hybrid.plan import (
     plan_rounds,
 )
 from urb_jax.experiment.protocol import PHASE_TEST, PHASE_TRAIN
-from urb_jax.experiment.request import MODES
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
