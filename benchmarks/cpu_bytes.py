@@ -3,7 +3,7 @@ one row per XLA_FLAGS setting, each in a fresh process (XLA reads XLA_FLAGS once
 
 Run it on two hosts and compare the default rows: equal digests mean the hosts' kernels round
 alike for these ops; different ones mean the same run can differ between them in its last bits,
-which long training amplifies (docs/results.md, session 23: Ingolstadt QMIX seed 0 gave t_CAV
+which long training amplifies (Ingolstadt QMIX seed 0 gave t_CAV
 5.0097 on one 2-core host and 4.9711 on another). A run records its host in exp_config.json's
 `machine`.
 
@@ -11,7 +11,7 @@ which long training amplifies (docs/results.md, session 23: Ingolstadt QMIX seed
 
 Columns: the XLA_FLAGS setting, then sha256 prefixes of a jitted 512x4096x512 product, a tanh
 layer of a small MLP, and a row sum, on `jax.random.normal` inputs drawn in the same process.
-Recorded on session 23's host (Intel Xeon family 6 model 207, AVX-512 FP16/BF16, AMX, under KVM):
+Recorded on a 2-core host (Intel Xeon family 6 model 207, AVX-512 FP16/BF16, AMX, under KVM):
 the default, AVX512 and AVX2 rows equal (e54024fdb8 1e6034d39c 98742fd94c); AVX and SSE4_2 (no
 FMA) other bytes for all three; one core and the kernel-library flags the default's bytes.
 """

@@ -12,7 +12,7 @@ Each variant runs in its own process (two checkouts cannot share one), one warm-
 machine load hits them alike. The table reports medians over all measured days, and the load
 average (`uptime`) before and after.
 
-    python benchmarks/pettingzoo_overhead.py --before /work/main --networks-dir ../shared/networks \\
+    python benchmarks/pettingzoo_overhead.py --before ../main --networks-dir ../shared/networks \\
         [--networks urb_grid saint_arnoult provins] [--task config1] [--days 5] [--rounds 3]
 """
 
@@ -99,7 +99,7 @@ def run_variant(args: argparse.Namespace, network: str, variant: str) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--before", default="/work/main", help="checkout whose UrbAECEnv is 'AEC before'")
+    ap.add_argument("--before", help="checkout whose UrbAECEnv is 'AEC before' (required)")
     ap.add_argument("--networks", nargs="+", default=["urb_grid", "saint_arnoult", "provins"])
     ap.add_argument("--networks-dir", default=None)
     ap.add_argument("--task", default="config1")
@@ -110,6 +110,8 @@ def main() -> None:
     if args.worker:
         print(json.dumps(worker(args.networks[0], args.networks_dir, args.task, args.worker, args.days)))
         return
+    if not args.before:
+        ap.error("--before CHECKOUT is required (the checkout whose UrbAECEnv is 'AEC before')")
     print(f"load average before: {os.getloadavg()}  ({os.cpu_count()} CPUs)")
     rows = []
     for network in args.networks:
