@@ -166,8 +166,8 @@ def versions() -> dict[str, str]:
     return out
 
 
-# The instruction-set extensions XLA:CPU's code can differ by. Measured (docs/results.md, session
-# 23): without FMA a product's last bits change; AVX-512 against AVX2 alone changed none there.
+# The instruction-set extensions XLA:CPU's code can differ by. Measured (`benchmarks/cpu_bytes.py`):
+# without FMA a product's last bits change; AVX-512 against AVX2 alone changed none there.
 ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "avx512_fp16",
              "amx_tile", "neon", "asimd", "sve")
 
