@@ -65,7 +65,7 @@ def child(spec: dict) -> None:
 
 
 def _use_unrolled_levels(jax, jnp, np) -> None:
-    """The act_by_levels this session replaced (one traced step per level), for the comparison."""
+    """act_by_levels unrolled (one traced step per level), for the comparison with the scan blocks."""
     from urb_jax.algorithms import learner
     from urb_jax.experiment.hybrid import fns
     from urb_jax.game.rollout import dependency_levels

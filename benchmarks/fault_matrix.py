@@ -1,4 +1,4 @@
-"""Fault injection on a real run (issue #15): one short train run on the embedded network, killed
+"""Fault injection on a real run: one short train run on the embedded network, killed
 with SIGKILL at N instants spread over its whole wall time (human days, calibration, rounds,
 checkpoint writes, test, the final merge and metrics), each resumed with `urb-jax train --resume`;
 then SIGKILL at four observed instants (a checkpoint being written, the test days, the merged

@@ -113,7 +113,7 @@ def main() -> None:
     parser.add_argument("--test-days", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cav-draw", default="urb", choices=["urb", "numpy"],
-                        help="URB's exact CAV draw (default) or session 1's numpy draw")
+                        help="URB's exact CAV draw (default) or the earlier numpy draw")
     parser.add_argument("--out", default="results/algorithms")
     parser.add_argument("--networks-dir", default=str(NETWORKS_DIR) if NETWORKS_DIR.is_dir() else None)
     args = parser.parse_args()

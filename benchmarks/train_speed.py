@@ -96,7 +96,7 @@ def main() -> None:
     parser.add_argument("--envs", nargs="+", type=int, default=[1, 64])
     parser.add_argument("--config", nargs="+", default=["config1", "fast"])
     parser.add_argument("--cav-draw", default="urb", choices=["urb", "numpy"],
-                        help="URB's exact CAV draw (default) or session 1's numpy draw")
+                        help="URB's exact CAV draw (default) or the earlier numpy draw")
     parser.add_argument("--standin", action="store_true", help="BPR stand-in instead of the surrogate")
     parser.add_argument("--min-days", type=int, default=200, help="training days per measurement (at least)")
     parser.add_argument("--net", default=None, help="override network sizes, DEPTHxCELLS (e.g. 2x64)")

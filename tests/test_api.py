@@ -1,6 +1,6 @@
 """The Python API (docs/api.md): `import urb_jax` exposes the entry points, imports neither JAX
 nor SUMO, and nothing it offers starts a process that re-runs the caller's script, so a script
-without an `if __name__ == "__main__":` guard runs (issue #18 point 4)."""
+without an `if __name__ == "__main__":` guard runs."""
 
 from __future__ import annotations
 

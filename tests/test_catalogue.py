@@ -47,8 +47,8 @@ def test_the_catalogue_states_the_papers_protocol():
         task, _ = load_task_config(r.kwargs["task_conf"])
         assert task.av_behavior == ("selfish" if r.kwargs["alg"] in ("iql", "ippo") else "cooperative")
         assert (task.ratio_machines, task.human_learning_episodes, task.test_eps) == (0.4, 200, 100)
-        # but 3 seeds, one at a time, for Ingolstadt's QMIX config1 (about 5 h a seed here), as the
-        # issue allows where time forces it, and the entry's preamble says so
+        # but 3 seeds, one at a time, for Ingolstadt's QMIX config1 (about 2.5 h a seed on 2 CPU
+        # cores), where time forces it, and the entry's preamble says so
         fewer = r.exp_id == "s1_ingolstadt_custom_qmix"
         assert r.kwargs["train_days"] == 6000
         assert r.kwargs["seeds"] == ([0, 1, 2] if fewer else [0, 1, 2, 3, 4])

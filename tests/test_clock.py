@@ -131,7 +131,7 @@ def test_the_hybrid_hint_goes_to_urbs_own_config_only():
 def test_a_run_with_urbs_config1_gets_the_hybrid_hint(tmp_path, capsys, monkeypatch):
     """The hint is chosen from the config as given: fitted to the budget (n_iters), URB's config1
     no longer equals the file, and a slow QMIX config1 run on nemours was told only 'fewer
-    --train-days' (session 15)."""
+    --train-days'."""
     from urb_jax.experiment.hybrid import clock
     from urb_jax.experiment.run import run_train
 

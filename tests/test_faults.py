@@ -1,4 +1,4 @@
-"""Faults and bad input (issue #15, cases 6-10): a run stopped in its human phase resumes to the
+"""Faults and bad input: a run stopped in its human phase resumes to the
 same results; Ctrl-C and a full disk end a run with a message that says how to go on; tasks whose
 metrics could not exist are refused before any SUMO day; --seeds and config paths."""
 

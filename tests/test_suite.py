@@ -255,8 +255,8 @@ def test_progress_estimates_the_groups_not_started_and_the_run(tmp_path):
 @pytest.mark.slow
 def test_resume_finishes_every_seed_group_of_the_run(tmp_path):
     """Seeds trained one group at a time (Ingolstadt's QMIX): a resume, by the suite or by any
-    seed's id, finishes every unfinished group, not only the named seed's. Session 20 found the
-    suite resuming seed 0's group alone, then reporting, with seeds 1 and 2 never trained."""
+    seed's id, finishes every unfinished group, not only the named seed's (a resume that continued seed 0's
+    group alone, then reported, would leave seeds 1 and 2 never trained)."""
     from urb_jax.experiment.run import _resume_group, resume_train
 
     conf = tmp_path / "hyb.json"

@@ -79,7 +79,7 @@ def test_urb_config_loads_as_written_or_is_refused_by_feature(path: Path) -> Non
 
 
 def test_urb_names_set_our_fields() -> None:
-    """The aliases the issue names, checked on URB's own files."""
+    """URB's key aliases, checked on URB's own files."""
     if not CONFIG.is_dir():
         pytest.skip(NO_URB)
     iql = load_urb_file(CONFIG / "algo_config/iql_torchrl/config3.json")

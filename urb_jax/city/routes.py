@@ -278,7 +278,7 @@ def _in_worker_interpreters(graph: nx.DiGraph, tasks: list[Task], workers: int) 
     """`tasks` split over `workers` fresh Python interpreters (`_serve`), fed and answered by pipe.
 
     Not a multiprocessing pool: its spawn/forkserver children re-run the caller's script, so a
-    script without an `if __name__ == "__main__"` guard crashed (issue #18); and fork could
+    script without an `if __name__ == "__main__"` guard would crash; and fork could
     deadlock on threads JAX may already run. A fresh interpreter imports only this module."""
     shares = [tasks[i::workers] for i in range(workers)]  # interleaved: slow ODs spread out
     root = str(Path(__file__).resolve().parents[2])  # the folder holding the urb_jax package

@@ -2,7 +2,7 @@
 
 XLA:GPU autotunes its matrix kernels when it compiles, and which kernel wins can differ from one
 process to the next, so two runs of the same program can differ in the last bits, which training
-amplifies. Measured on one H100 (docs/results.md, session 21): URB's QMIX config1 on urb_grid, two
+amplifies. Measured on one H100 (docs/results.md, "GPU"): URB's QMIX config1 on urb_grid, two
 seeds, gave seed 1 different records in two processes; with `--xla_gpu_deterministic_ops=true`
 two processes on two machines gave the same bytes. XLA reads XLA_FLAGS when it creates its
 backend, so the flag goes in before JAX's first computation: `import urb_jax` sets it (the

@@ -166,8 +166,8 @@ def versions() -> dict[str, str]:
     return out
 
 
-# The instruction-set extensions XLA:CPU's code can differ by. Measured (docs/results.md, session
-# 23): without FMA a product's last bits change; AVX-512 against AVX2 alone changed none there.
+# The instruction-set extensions XLA:CPU's code can differ by. Measured: without FMA a product's last
+# bits change; AVX-512 against AVX2 alone changed none.
 ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "avx512_fp16",
              "amx_tile", "neon", "asimd", "sve")
 
@@ -184,7 +184,7 @@ def _cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[str, list[str]]:
     model = get("model name") or get("Hardware") or platform.processor() or platform.machine()
     if "cpu family" in fields:  # a VM's model name can be generic ("Intel(R) Xeon(R) Processor")
         model += f" (family {get('cpu family')}, model {get('model')}, stepping {get('stepping')})"
-    if "cache size" in fields:  # product kernels size their blocks by it (docs/results.md, session 23)
+    if "cache size" in fields:  # product kernels size their blocks by it
         model += f", cache {get('cache size')}"
     have = set((get("flags") or get("Features") or "").split())
     return model, [f for f in ISA_FLAGS if f in have]
@@ -194,7 +194,7 @@ def machine() -> dict[str, Any]:
     """Where this process computes: JAX's backend and device, the CPU and its ISA flags, the cores.
     A run records it because its last bits can depend on it: Ingolstadt's QMIX seed 0, the same
     command on two 2-core CPU hosts (no change to what the code computes between), gave t_CAV
-    5.0097 and 4.9711 (docs/results.md, session 23); a GPU and a CPU differ too (docs/hybrid.md,
+    5.0097 and 4.9711; a GPU and a CPU differ too (docs/hybrid.md,
     "Equivalence")."""
     import jax  # the callers have it loaded already; this module's other users need not
 

@@ -54,7 +54,7 @@ class _Pace(NamedTuple):
 
 def _pace(results_dir: Path, label: str, group: list[str]) -> _Pace | None:
     """A group's pace from its rounds so far: a finished group's rounds.csv, else its checkpoint's
-    rounds log (with the rounds planned, recorded since session 20); None where neither says."""
+    rounds log (with the rounds planned, where the checkpoint records them); None where neither says."""
     rounds_csv = results_dir / group[0] / ROUNDS_FILE
     if run_status(results_dir / group[0]) == "done" and rounds_csv.is_file():
         rows = pd.read_csv(rounds_csv).to_dict("records")

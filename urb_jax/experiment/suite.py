@@ -243,10 +243,19 @@ def paper_report(results_dir: str | Path, out: str | Path, allow_fewer: bool = F
         for r in results)
     rows = [t.assign(entry=r.entry) for r in results for t in (r.runs, r.partial) if not t.empty]
     write_text(ledger_file, ledger_json(pd.concat(rows, ignore_index=True) if rows else ledger.iloc[:0]))
-    header = PAPER_HEADER.format(results=results_dir, ledger=os.path.relpath(ledger_file, out.parent),
-                                 summary=summary)
+    ledger_name = Path(os.path.relpath(ledger_file, out.parent)).as_posix()
+    header = PAPER_HEADER.format(results=_as_run_from(results_dir), ledger=ledger_name, summary=summary)
     write_text(out, paper_markdown(results, paper, header))
     return out
+
+
+def _as_run_from(path: Path) -> str:
+    """`path` as the page names it: relative to the folder the command runs in, never absolute (the
+    page is committed and read on other machines); its own name where no relative path exists."""
+    try:
+        return Path(os.path.relpath(path)).as_posix()
+    except ValueError:  # another drive (Windows)
+        return path.name
 
 
 _FINISHED = re.compile(r"^\| `([^`]+)` \| [^|]+ \| (\d+) of \d+ runs finished \|$", re.MULTILINE)

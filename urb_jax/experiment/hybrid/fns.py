@@ -61,7 +61,7 @@ class TrainerFns(NamedTuple):
 # of one seed alone, map 1.18x; 42.8 M (provins, 209 CAVs) vmap 2.0x at 2 seeds, map 1.0x. Between
 # the two it is unmeasured. On one H100 vmap wins at any size measured: 48.2 M (5 seeds) vmap 0.80x,
 # map 1.04x; 166 M (ingolstadt_custom, 414 CAVs, 3 seeds) vmap 0.93x, map 1.01x (docs/results.md,
-# session 21), so `auto` maps on the CPU backend only.
+# "GPU"), so `auto` maps on the CPU backend only.
 MAP_SEEDS_PARAMS = 10_000_000
 
 

@@ -2,7 +2,7 @@
 
 URB's QMIX config1 on ingolstadt_custom (414 CAVs) has a mixer of about 164 M parameters (its
 hypernetwork grows as CAVs squared); with target, Adam moments and five seeds under vmap the run
-grew past 21 GB during setup and the kernel killed it (session 15), on a machine whose other jobs
+grew past 21 GB during setup and the kernel killed it, on a machine whose other jobs
 it could as well have killed. The learner's state is known from shapes alone (`jax.eval_shape` of
 its init), so the run compares it, with room for the update's gradients and temporaries, to the
 memory available where the learner lives (a GPU's own memory, else this machine's), and refuses
@@ -22,7 +22,7 @@ from urb_jax.core.errors import UrbJaxError
 # The training's peak over its state: the update's gradients and intermediates come on top of the
 # state (params, target, optimizer moments, replay buffer), and the round's learner runs donate the
 # old state to the new (hybrid/fns.py). Measured on URB's QMIX config1, saint_arnoult Scenario 2,
-# 2 seeds, 1.44 GB of state (`python benchmarks/learner_memory.py`, session 18): the resident set
+# 2 seeds, 1.44 GB of state (`python benchmarks/learner_memory.py`): the resident set
 # rose over the process's own by 3.08 x the state (a fresh run, to round 1) and 2.91 x (resumed),
 # both peaks in the surrogate iterations; 4.18 x and 3.72 x before the donation. 3.5 leaves room.
 PEAK_OVER_STATE = 3.5
