@@ -11,12 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.kill_worker import run_killing_a_busy_worker
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kill_worker import run_killing_a_busy_worker
 
 pytestmark = pytest.mark.sumo
 
