@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from digests import result_digests
+from support.digests import result_digests
 
 HYBRID = {"train_days": 120, "num_envs": 4, "surrogate_days_per_round": 32, "sumo_days_per_round": 4,
           "sumo_updates": 1, "sumo_workers": 2, "calib_human_days": 5, "calib_varied_days": 2,

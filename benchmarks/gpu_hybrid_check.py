@@ -1,5 +1,5 @@
 """The hybrid trainer end to end on whatever backend JAX has (made for a lent GPU, which has no SUMO):
-the SUMO days come from tests/fakeday.py's deterministic stand-in, everything else is the real
+the SUMO days come from tests/support/fakeday.py's deterministic stand-in, everything else is the real
 trainer (surrogate calibration, rounds, updates, checkpoints, records, metrics).
 
 Checks, each printed as a row:
@@ -24,9 +24,9 @@ from pathlib import Path
 import jax
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-import compile_cache_run
-from compile_cache_run import IQL
-from fakeday import FakeExecutor
+from support import compile_cache_run
+from support.compile_cache_run import IQL
+from support.fakeday import FakeExecutor
 
 from urb_jax.experiment.request import ResumeRequest, TrainRequest
 from urb_jax.experiment.run import resume_train, run_train

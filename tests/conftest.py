@@ -1,4 +1,5 @@
-"""Shared fixtures. Real URB networks are read from ../shared/networks next to the repo."""
+"""Fixtures shared by several test modules (helpers they share are in tests/support/). Real URB
+networks are read from ../shared/networks next to the repo."""
 
 from __future__ import annotations
 
@@ -33,8 +34,8 @@ def grid_scenario(_isolated_cache):
 
 @pytest.fixture(scope="session")
 def tiny_iql_confs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
-    """tests/test_hybrid_loop.py's tiny IQL hybrid run configs, written once per session."""
-    from test_hybrid_loop import tiny_iql_run
+    """support.tiny_runs.tiny_iql_run's configs: a tiny IQL hybrid run, written once per session."""
+    from support.tiny_runs import tiny_iql_run
 
     return tiny_iql_run(tmp_path_factory.mktemp("tiny_iql_confs"))
 
@@ -44,7 +45,7 @@ def tiny_iql_reference(tiny_iql_confs, tmp_path_factory: pytest.TempPathFactory)
     """(RunOutput, FakeExecutor): the tiny IQL run on `tiny_iql_confs`, uninterrupted, with the
     executor that ran its days. Many tests compare a killed, resumed or reused run against exactly
     this run; run once per test process (it is most of such a test's cost). Read it, never write."""
-    from test_hybrid_loop import FakeExecutor
+    from support.fakeday import FakeExecutor
 
     from urb_jax.experiment.request import TrainRequest
     from urb_jax.experiment.run import run_train
@@ -54,3 +55,11 @@ def tiny_iql_reference(tiny_iql_confs, tmp_path_factory: pytest.TempPathFactory)
                                     results_dir=str(tmp_path_factory.mktemp("tiny_iql_ref")), progress=False,
                                     **tiny_iql_confs), executor=ex)
     return out, ex
+
+
+@pytest.fixture(scope="module")
+def confs(tiny_iql_confs):
+    """tiny_iql_confs, under the name the hybrid-run tests give their run's configs (runs on them
+    compare against tiny_iql_reference). Modules whose runs have configs of their own (test_credit.py,
+    test_marginal_cost.py, test_human_adapt.py, test_round_log.py) define their own `confs`."""
+    return tiny_iql_confs

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
-from pathlib import Path
 
 import jax
 import numpy as np
 import optax
 import pytest
+from standin import make_env
 
 from urb_jax.algorithms import iql
 from urb_jax.algorithms.configs import IQLConfig
@@ -24,9 +23,6 @@ from urb_jax.experiment.checkpoints import (
     save_round,
 )
 from urb_jax.surrogate import SumoSample
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from standin import make_env
 
 
 def test_checkpoint_round_trip(grid_scenario, tmp_path):

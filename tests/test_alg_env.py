@@ -141,10 +141,6 @@ def test_collect_batches_days_and_baselines_respect_masks():
 def test_levels_match_env_fixed_point_order(grid_scenario):
     """act_by_levels (each CAV evaluated once) == the fixed-point oracle (depth rounds) for an
     observation-dependent policy on urb_grid (depth 14), and levels respect departures."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from standin import make_env
 
     env = make_env(grid_scenario)

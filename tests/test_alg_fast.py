@@ -4,14 +4,13 @@ hypernetwork (shape, monotonicity, numpy reference). URB's config1..5 keep URB's
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+from standin import make_env
+from support.mixer_reference import qmix_numpy
 
 from urb_jax.algorithms import ippo, iql, qmix
 from urb_jax.algorithms.configs import IQLConfig, MixerConfig, PPOConfig
@@ -19,11 +18,6 @@ from urb_jax.algorithms.learner import Day
 from urb_jax.algorithms.qmix import QMixer
 from urb_jax.algorithms.registry import ALGORITHMS, load_algo_config
 from urb_jax.algorithms.updates import update_plan
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from mixer_reference import qmix_numpy
-from standin import make_env
 
 TORCHRL = ("iql", "ippo", "mappo", "qmix", "vdn")
 

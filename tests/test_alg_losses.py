@@ -4,8 +4,6 @@
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import flax.linen as nn
 import jax
@@ -13,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+from support.mixer_reference import qmix_jnp, qmix_numpy
 
 from urb_jax.algorithms.buffer import buffer_add, buffer_init, buffer_sample
 from urb_jax.algorithms.configs import MixerConfig
@@ -26,9 +25,6 @@ from urb_jax.algorithms.policy import eps_greedy, linear_schedule
 from urb_jax.algorithms.qmix import QMixer, VDNMixer, mixed_td_loss
 from urb_jax.algorithms.updates import clip_by_global_norm, gae, polyak
 from urb_jax.core.errors import ConfigError
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from mixer_reference import qmix_jnp, qmix_numpy
 
 MASK = jnp.array([[True, True, False], [True, True, True]])  # CAV0 has 2 distinct routes
 

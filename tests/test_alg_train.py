@@ -3,18 +3,13 @@ the independent learners and MAPPO lower the CAVs' mean travel time; seeds vmap.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import jax
 import numpy as np
 import pytest
+from standin import make_env
 
 from urb_jax.algorithms import ippo, ippo_star, iql, iql_star, mappo, qmix, vdn
 from urb_jax.algorithms.configs import IPPOStarConfig, IQLConfig, IQLStarConfig, MixerConfig, PPOConfig
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from standin import make_env
 
 SMALL = dict(agent_frames_per_batch=10, n_iters=25, mlp_depth=1, mlp_cells=32, minibatch_size=256, num_envs=4)
 CASES = {

@@ -3,20 +3,14 @@ resolve to what the paper states, and every network it names is a real URB netwo
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
+from support.catalogue import CATALOGUE, SUITES
 
 from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.core.configio import find_config
 from urb_jax.experiment.hybrid.plan import load_hybrid_config
 from urb_jax.experiment.suite import load_suite
 from urb_jax.game.config import load_env_config, load_task_config
-
-SUITES = Path(__file__).resolve().parents[1] / "configs" / "suites"
-CATALOGUE = ["scenario1", "scenario2", "adjusted_iql_ippo", "demo_nangis_selfish_adapt",
-             "demo_nemours_malicious", "demo_gretz_altruistic_adapt", "sensitivity_demand_half",
-             "sensitivity_demand_double", "sensitivity_global_obs"]
 
 
 def _trains(name: str):

@@ -4,14 +4,10 @@ training will cost, timed from the host between equal chunks of one compiled sca
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_hybrid_loop import FakeExecutor
+from support.fakeday import FakeExecutor
 
 from urb_jax.experiment.hybrid.clock import LINE_EVERY_S, IterationClock, chunk_len, fmt_duration, run_chunks
 from urb_jax.experiment.request import ResumeRequest, TrainRequest

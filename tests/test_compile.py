@@ -15,11 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from digests import result_digests
 from standin import make_env
+from support.digests import result_digests
 
 from urb_jax.algorithms.registry import algorithm, load_algo_config
 from urb_jax.core.compile_cache import COMPILE_CACHE_ENV, disable_compile_cache, enable_compile_cache
@@ -201,13 +198,14 @@ def test_warm_compile_cache_gives_identical_records(tmp_path):
     """Two processes, one compile cache: the second compiles nothing (every program it asks for is
     a cache hit: none carries a host callback, which JAX would compile afresh every process) and
     writes byte-identical records and metrics."""
-    env = {**os.environ, "URB_JAX_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(REPO)}
+    env = {**os.environ, "URB_JAX_CACHE": str(tmp_path / "cache"),
+           "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "tests")])}  # support.compile_cache_run
     env.pop(COMPILE_CACHE_ENV, None)
-    script = Path(__file__).resolve().parent / "compile_cache_run.py"
     digests, entries, compiles = [], [], []
     for run in ("cold", "warm"):
         out = tmp_path / run
-        subprocess.run([sys.executable, str(script), str(out)], env=env, check=True, timeout=600)
+        subprocess.run([sys.executable, "-m", "support.compile_cache_run", str(out)], env=env, check=True,
+                       timeout=600)
         [folder] = [p.parent for p in out.glob("*/exp_config.json")]
         digests.append(result_digests(folder))
         assert digests[-1] is not None

@@ -5,35 +5,22 @@ and a hybrid run whose SUMO-day rewards carry them; runs without a surrogate are
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_hybrid_loop import FakeExecutor
+from support.fakeday import FakeExecutor
+from support.linear_congestion import ALPHA, linear_model
+from support.tiny_runs import tiny_reward_run
 
 from urb_jax.commands.cli import main
-from urb_jax.core.configio import find_config
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.request import TrainRequest
 from urb_jax.experiment.run import run_train
 from urb_jax.game.rewards import behaviour_coefficients, credit_rewards, externalities
 from urb_jax.reporting.records import read_records
 from urb_jax.surrogate import build_static, init_params, predict
-
-COST = jnp.asarray([1.0, 2.0])  # free-flow minutes of two routes every agent has
-ALPHA = 0.1  # minutes each vehicle adds to its route
-CONST = 0.5  # a route-independent part of every time (like the surrogate's insertion delay)
-
-
-def linear_model(probs: jnp.ndarray) -> jnp.ndarray:
-    """t_j = CONST + sum_k P_jk (COST_k + ALPHA * flow_k): linear congestion, shared routes."""
-    flow = probs.sum(0)  # [K]
-    return CONST + (probs * (COST + ALPHA * flow)[None]).sum(1)
 
 
 def test_externalities_by_hand():
@@ -88,18 +75,6 @@ def test_surrogate_externalities_match_finite_differences(grid_scenario):
         # and a finite difference (float32: a step large enough to rise above rounding)
         bumped = np.asarray(model(onehot.at[i, choices[i]].add(0.1)))
         assert float(ext[2, i]) == pytest.approx((bumped - np.asarray(times))[others].sum() / 0.1, rel=0.1)
-
-
-def tiny_reward_run(d: Path, **task_keys) -> dict[str, str]:
-    """A tiny hybrid run's configs (3 rounds of 4 surrogate and 2 SUMO days, 30% CAVs) with the
-    task config `test` plus `task_keys`."""
-    hyb = {"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
-           "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
-           "refit_days": 4, "refit_steps": 5}
-    task = {**json.loads(find_config("task", "test").read_text()), "ratio_machines": 0.3, **task_keys}
-    (d / "hyb.json").write_text(json.dumps(hyb))
-    (d / "task.json").write_text(json.dumps(task))
-    return {"hybrid_conf": str(d / "hyb.json"), "task_conf": str(d / "task.json")}
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import json
 
 import numpy as np
 import pytest
-from fakeday import FakeDay
+from support.fakeday import FakeDay
 
 from urb_jax.algorithms.baselines import make_baseline
 from urb_jax.city.demand import scale_demand

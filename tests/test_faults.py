@@ -13,10 +13,8 @@ from collections import namedtuple
 from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from digests import result_digests
-from test_hybrid_loop import FakeExecutor, confs  # noqa: F401  (module fixture)
+from support.digests import result_digests
+from support.fakeday import FakeExecutor
 
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import ConfigError
@@ -32,7 +30,7 @@ H = 10  # configs/task/test.json
 
 
 
-def _train(confs, tmp_path, exp_id, executor=None, stop_after_round=None, **kw):  # noqa: F811
+def _train(confs, tmp_path, exp_id, executor=None, stop_after_round=None, **kw):
     req = TrainRequest(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False, **{**confs, **kw})
     return run_train(req, executor=executor or FakeExecutor(), stop_after_round=stop_after_round)
 
@@ -45,7 +43,7 @@ def reference(tiny_iql_reference):
     return {"digest": result_digests(ref.folder), "days": sum(len(b) for b, _ in ex.batches)}
 
 
-def test_a_run_stopped_in_its_human_phase_resumes_to_the_same_results(confs, tmp_path, reference):  # noqa: F811
+def test_a_run_stopped_in_its_human_phase_resumes_to_the_same_results(confs, tmp_path, reference):
     """Before: exp_config.json came after the human phase, so such a folder was neither resumable
     nor replaceable by --overwrite; now the run resumes, reading its finished human days back."""
     with pytest.raises(InterruptedRunError, match=r"no checkpoint yet; the SUMO days of its human phase "
@@ -63,14 +61,14 @@ def test_a_run_stopped_in_its_human_phase_resumes_to_the_same_results(confs, tmp
     assert cfg["resumed"] == 1 and cfg["resumed_on"] == [machine()]  # where the resume computed too
 
 
-def test_a_stopped_run_can_be_replaced_with_overwrite(confs, tmp_path):  # noqa: F811
+def test_a_stopped_run_can_be_replaced_with_overwrite(confs, tmp_path):
     with pytest.raises(InterruptedRunError):
         _train(confs, tmp_path, "k", FakeExecutor(fail_on_call=1))
     (out,) = _train(confs, tmp_path, "k", overwrite=True)
     assert json.loads((out.folder / "exp_config.json").read_text())["status"] == "done"
 
 
-def test_a_full_disk_keeps_the_last_checkpoint_and_resumes(confs, tmp_path, monkeypatch, reference):  # noqa: F811
+def test_a_full_disk_keeps_the_last_checkpoint_and_resumes(confs, tmp_path, monkeypatch, reference):
     """Before: orbax's traceback per array, and a partial checkpoint directory."""
     real = checkpoints.shutil.disk_usage
     usage = namedtuple("usage", "total used free")
@@ -114,7 +112,7 @@ def _task(tmp_path: Path, **values) -> str:
     return str(path)
 
 
-def test_a_task_without_cavs_is_refused_before_any_sumo_day(confs, tmp_path):  # noqa: F811
+def test_a_task_without_cavs_is_refused_before_any_sumo_day(confs, tmp_path):
     """Before: the whole human phase ran, then orbax crashed on zero-size arrays."""
     ex = FakeExecutor()
     results = tmp_path / "results"
@@ -125,7 +123,7 @@ def test_a_task_without_cavs_is_refused_before_any_sumo_day(confs, tmp_path):  #
 
 
 @pytest.mark.parametrize(("key", "metric"), [("test_eps", "t_CAV"), ("human_learning_episodes", "t_pre")])
-def test_a_task_whose_metrics_cannot_exist_is_refused(confs, tmp_path, key, metric):  # noqa: F811
+def test_a_task_whose_metrics_cannot_exist_is_refused(confs, tmp_path, key, metric):
     """Before: exit 0 with N/A metrics."""
     task = _task(tmp_path, **{key: 0})
     with pytest.raises(ConfigError, match=rf"key '{key}' is 0, but .*{metric}.*Fix: set it to 1 or more"):
@@ -146,7 +144,7 @@ def test_bad_seeds_are_refused_before_any_folder(tmp_path, capsys, seeds, messag
     assert not (tmp_path / "r").exists()
 
 
-def test_resume_from_another_folder_finds_a_relative_task_config(confs, tmp_path, monkeypatch):  # noqa: F811
+def test_resume_from_another_folder_finds_a_relative_task_config(confs, tmp_path, monkeypatch):
     (tmp_path / "a").mkdir()
     monkeypatch.chdir(tmp_path / "a")
     _task(tmp_path / "a")
@@ -197,7 +195,7 @@ def test_ctrl_c_restarts_no_worker():
 @pytest.mark.slow
 @pytest.mark.sumo
 @pytest.mark.parametrize("presses", [1, 2])
-def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses):  # noqa: F811
+def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses):
     """Before: the first SIGINT was swallowed and the second hung for over a minute. Now one press
     stops the run (exit 130, the resume command printed, SUMO workers gone); two exit at once."""
     import signal
@@ -237,7 +235,7 @@ def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses):  # no
     assert (tmp_path / ".k.lock").read_text() == ""  # no owner left to "take over" from
 
 
-def test_mode_sumo_checkpoints_stay_bounded(confs, tmp_path):  # noqa: F811
+def test_mode_sumo_checkpoints_stay_bounded(confs, tmp_path):
     """--mode sumo wrote every SUMO day so far into each round's checkpoint (about 175 GB over a
     mantes-sized run); only the hybrid refit reads them."""
     import numpy as np

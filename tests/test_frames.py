@@ -4,14 +4,12 @@ learner; config checks."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+from standin import make_env
 
 from urb_jax.algorithms import ippo, iql, qmix
 from urb_jax.algorithms.buffer import buffer_add, buffer_init
@@ -25,9 +23,6 @@ from urb_jax.algorithms.frames import (
 )
 from urb_jax.algorithms.learner import Day
 from urb_jax.core.errors import ConfigError
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from standin import make_env
 
 K = 2
 TURN = jnp.array([2, 0, 1])  # CAV1 acts first, then CAV2, then CAV0

@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 
 from urb_jax.commands.cli import main
+from urb_jax.experiment.request import BaselineRequest
 
 pytestmark = pytest.mark.sumo
 
@@ -14,8 +15,9 @@ pytestmark = pytest.mark.sumo
 def aon_run(tmp_path_factory):
     from urb_jax.experiment.run import run_baseline
 
-    return run_baseline(model="aon", results_dir=str(tmp_path_factory.mktemp("headroom")), progress=False,
-                        task_overrides={"human_learning_episodes": 5, "training_eps": 2, "test_eps": 3})
+    return run_baseline(BaselineRequest(model="aon", results_dir=str(tmp_path_factory.mktemp("headroom")),
+                                        progress=False), task_overrides={"human_learning_episodes": 5,
+                                                                         "training_eps": 2, "test_eps": 3})
 
 
 def _rows(out: str) -> dict[str, list[float]]:

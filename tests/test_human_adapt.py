@@ -2,13 +2,12 @@
 every training day in order, surrogate days and SUMO days alike, and the test days in order, as in
 URB; frozen humans keep the P side-by-side SUMO days (tests/test_hybrid_loop.py covers those).
 
-SUMO days are the deterministic stand-in of tests/fakeday.py, so a replay of the human learning rule
+SUMO days are the deterministic stand-in of tests/support/fakeday.py, so a replay of the human learning rule
 over the records is an independent check of which days the humans lived."""
 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import jax
@@ -16,9 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_hybrid_loop import FakeExecutor
+from support.fakeday import FakeExecutor
 
 from urb_jax.city.scenario import load_scenario
 from urb_jax.core.configio import find_config

@@ -1,11 +1,10 @@
 """The fast human phase (`human_surrogate_days`): leading human days on the surrogate, the rest,
-t_pre's window included, in SUMO. On urb_grid with FakeDay (tests/fakeday.py) standing in for SUMO."""
+t_pre's window included, in SUMO. On urb_grid with FakeDay (tests/support/fakeday.py) standing in for SUMO."""
 
 from __future__ import annotations
 
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import jax
@@ -13,10 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fakeday import FakeDay
-from test_hybrid_loop import FakeExecutor, confs  # noqa: F401  (confs is a fixture)
+from support.fakeday import FakeDay, FakeExecutor
 
 from urb_jax.city.scenario import load_scenario
 from urb_jax.core.errors import UrbJaxError
@@ -100,7 +96,7 @@ def test_fast_phase_runs_the_leading_days_on_the_surrogate(asked, calibrate, exp
 
 
 @pytest.fixture(scope="module")
-def fast_confs(confs, tmp_path_factory):  # noqa: F811
+def fast_confs(confs, tmp_path_factory):
     d = tmp_path_factory.mktemp("fast_confs")
     hyb = json.loads(Path(confs["hybrid_conf"]).read_text()) | {"human_surrogate_days": S}
     (d / "hyb.json").write_text(json.dumps(hyb))

@@ -4,15 +4,11 @@ one short run on real SUMO days through the process pool."""
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from digests import result_digests
-from test_hybrid_loop import FakeExecutor
+from support.digests import result_digests
+from support.fakeday import FakeExecutor
 
 from urb_jax.algorithms.registry import ALGORITHMS
 from urb_jax.experiment.request import ResumeRequest, TrainRequest

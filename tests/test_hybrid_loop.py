@@ -1,58 +1,26 @@
 """The hybrid trainer end to end on urb_grid with a deterministic stand-in for SUMO days
-(tests/fakeday.py): records, metric provenance, modes, and resume determinism after
+(tests/support/fakeday.py): records, metric provenance, modes, and resume determinism after
 a kill between rounds and in the middle of a round."""
 
 from __future__ import annotations
 
 import json
 import shutil
-import sys
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fakeday import FakeDay, FakeExecutor
+from support.fakeday import FakeDay, FakeExecutor
+from support.tiny_runs import E, H, train_iql
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError
 from urb_jax.core.paths import embedded_networks_dir
 from urb_jax.experiment.checkpoints import latest_checkpoint
 from urb_jax.experiment.hybrid.trainer import HybridTrainer
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
-from urb_jax.experiment.run import resume_train, run_train
+from urb_jax.experiment.request import ResumeRequest
+from urb_jax.experiment.run import resume_train
 from urb_jax.reporting.records import read_records
-
-H, E = 10, 10  # configs/task/test.json
-
-
-def tiny_iql_run(d: Path) -> dict[str, str]:
-    """A tiny IQL hybrid run's configs in `d` (3 rounds of 4 surrogate and 2 SUMO days, task `test`);
-    also hyb_reuse.json, the same with repeated test days read back."""
-    hyb = {"train_days": 18, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
-           "sumo_updates": 1, "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2,
-           "calib_steps": 20, "refit_days": 4, "refit_steps": 5,
-           "reuse_identical_test_days": False}  # every test day reaches the executor (provenance test)
-    alg = {"agent_frames_per_batch": 2, "n_iters": 10, "num_epochs": 1, "minibatch_size": 64,
-           "mlp_depth": 1, "mlp_cells": 16, "memory_size": 400}
-    (d / "hyb.json").write_text(json.dumps(hyb))
-    (d / "hyb_reuse.json").write_text(json.dumps({**hyb, "reuse_identical_test_days": True}))
-    (d / "iql.json").write_text(json.dumps(alg))
-    return {"hybrid_conf": str(d / "hyb.json"), "alg_conf": str(d / "iql.json"), "task_conf": "test"}
-
-
-@pytest.fixture(scope="module")
-def confs(tiny_iql_confs):
-    """tiny_iql_run's configs (tests/conftest.py writes them once per session, so that runs on them
-    compare against the shared uninterrupted run, tiny_iql_reference)."""
-    return tiny_iql_confs
-
-
-def _train(confs, tmp_path, exp_id, executor=None, stop_after_round=None, **kw):
-    req = TrainRequest(alg="iql", exp_id=exp_id, results_dir=str(tmp_path), progress=False, **confs, **kw)
-    return run_train(req, executor=executor or FakeExecutor(), stop_after_round=stop_after_round)
 
 
 def test_loop_records_and_metric_provenance(tiny_iql_reference):
@@ -124,7 +92,7 @@ def test_identical_test_days_run_once_with_the_same_metrics(confs, tmp_path, tin
     reuse on, SUMO runs each distinct test day once and the records and metrics are unchanged."""
     plain, plain_ex = tiny_iql_reference  # the same run with reuse off (hyb.json)
     reuse_ex = FakeExecutor()
-    (reuse,) = _train({**confs, "hybrid_conf": confs["hybrid_conf"].replace("hyb.json", "hyb_reuse.json")},
+    (reuse,) = train_iql({**confs, "hybrid_conf": confs["hybrid_conf"].replace("hyb.json", "hyb_reuse.json")},
                       tmp_path, "reuse", executor=reuse_ex)
     n_plain = sum(len(b) for b, _ in plain_ex.batches)
     n_reuse = sum(len(b) for b, _ in reuse_ex.batches)
@@ -141,7 +109,7 @@ def test_identical_test_days_run_once_with_the_same_metrics(confs, tmp_path, tin
 @pytest.mark.parametrize("mode", ["sumo", "surrogate"])
 def test_modes(confs, tmp_path, mode):
     ex = FakeExecutor()
-    (out,) = _train(confs, tmp_path, mode, executor=ex, mode=mode)
+    (out,) = train_iql(confs, tmp_path, mode, executor=ex, mode=mode)
     rec = read_records(out.folder)
     rounds = pd.read_csv(out.folder / "rounds.csv")
     cfg = json.loads((out.folder / "exp_config.json").read_text())
@@ -166,7 +134,7 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
 
     # Kill 1: after round 1's checkpoint. Then kill 2 in the middle of round 3's SUMO batch, after
     # a partial resume; the final resume must end exactly like the uninterrupted run.
-    (out,) = _train(confs, tmp_path, "killed", stop_after_round=1)
+    (out,) = train_iql(confs, tmp_path, "killed", stop_after_round=1)
     assert out.stopped == 1 and latest_checkpoint(out.folder)[0] == 1
     with pytest.raises(InterruptedRunError, match="Continue with: urb-jax train --resume"):
         resume_train(ResumeRequest("killed", results_dir=str(tmp_path), progress=False),
@@ -200,7 +168,7 @@ def test_resume_after_kill_between_and_within_rounds(confs, tmp_path, monkeypatc
 def test_kept_checkpoints_are_the_learning_curve_snapshots(confs, tmp_path, tiny_iql_reference):
     """keep_checkpoints_at keeps the first round to reach each day count (rounds of 6 days here: 0 ->
     round 0, 7 -> round 2) beside the newest one, and changes nothing the run computes."""
-    (out,) = _train(confs, tmp_path, "kept", overrides=["hybrid.keep_checkpoints_at=[0, 7]"])
+    (out,) = train_iql(confs, tmp_path, "kept", overrides=["hybrid.keep_checkpoints_at=[0, 7]"])
     kept = sorted(p.name for p in (out.folder / "checkpoints").glob("round_*"))
     assert kept == ["round_00000", "round_00002", "round_00003"]
     assert all((out.folder / "checkpoints" / k / "meta.json").is_file() for k in kept)
@@ -218,7 +186,7 @@ def test_resume_finds_the_network_from_another_folder(confs, tmp_path, monkeypat
     start, other, results = tmp_path / "start", tmp_path / "other", str(tmp_path / "r")
     shutil.copytree(embedded_networks_dir() / "urb_grid", start / "nets" / "urb_grid")
     monkeypatch.chdir(start)
-    (out,) = _train(confs, results, "moved", networks_dir="nets", stop_after_round=1)
+    (out,) = train_iql(confs, results, "moved", networks_dir="nets", stop_after_round=1)
     config_file = out.folder / "exp_config.json"
     config = json.loads(config_file.read_text())
     assert config["train_args"]["networks_dir"] == str(start / "nets")

@@ -1,18 +1,16 @@
 """Multi-seed training under vmap and human-phase reuse, on urb_grid with the FakeDay stand-in for
-SUMO (tests/fakeday.py) and a short budget (3 rounds of 4 surrogate env-days + 2 SUMO days)."""
+SUMO (tests/support/fakeday.py) and a short budget (3 rounds of 4 surrogate env-days + 2 SUMO days)."""
 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_hybrid_loop import FakeExecutor, H, confs  # noqa: F401  (confs is a fixture)
+from support.fakeday import FakeExecutor
+from support.tiny_runs import H
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError
@@ -24,7 +22,7 @@ from urb_jax.reporting.records import read_records
 P, ROUNDS = 2, 3
 
 
-def _train(confs, root, exp_id, executor, stop_after_round=None, **kw):  # noqa: F811
+def _train(confs, root, exp_id, executor, stop_after_round=None, **kw):
     req = TrainRequest(alg="iql", exp_id=exp_id, results_dir=str(root), progress=False, **confs, **kw)
     return run_train(req, executor=executor, stop_after_round=stop_after_round)
 
@@ -33,7 +31,7 @@ def _metrics(folder):
     return pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv")
 
 
-def _with_conf(confs, tmp_path, **hyb):  # noqa: F811
+def _with_conf(confs, tmp_path, **hyb):
     cfg = json.loads(Path(confs["hybrid_conf"]).read_text()) | hyb
     path = tmp_path / "hyb_override.json"
     path.write_text(json.dumps(cfg))
@@ -41,7 +39,7 @@ def _with_conf(confs, tmp_path, **hyb):  # noqa: F811
 
 
 @pytest.fixture(scope="module")
-def pair(confs, tmp_path_factory):  # noqa: F811
+def pair(confs, tmp_path_factory):
     """The reference: seeds 0 and 1 trained together (vmapped), uninterrupted."""
     root = tmp_path_factory.mktemp("pair")
     ex = FakeExecutor()
@@ -50,7 +48,7 @@ def pair(confs, tmp_path_factory):  # noqa: F811
 
 
 @pytest.mark.slow
-def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa: F811
+def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):
     """Each seed of a vmapped 2-seed run gets exactly the SUMO choices, records and metrics of the
     same seed trained alone (`max_vmapped_seeds: 1` trains the two seeds one after another, each a
     group of one). Exact equality holds because every seed's randomness flows from its own key, no
@@ -100,7 +98,7 @@ def test_vmapped_seeds_equal_seeds_trained_alone(pair, confs, tmp_path):  # noqa
 
 
 @pytest.mark.slow
-def test_mapped_seeds_equal_vmapped_seeds(pair, confs, tmp_path):  # noqa: F811
+def test_mapped_seeds_equal_vmapped_seeds(pair, confs, tmp_path):
     """`seed_axis: map` (a big learner's default: lax.map runs the seeds one after another in the
     program) trains each seed as the vmapped group does, at these shapes to the last bit, and the
     run records which axis it used; `auto` keeps this small learner vmapped."""
@@ -130,7 +128,7 @@ def test_auto_maps_the_seeds_of_a_big_learner_on_a_cpu_only():
 
 
 @pytest.mark.slow
-def test_a_run_resumes_with_the_seed_axis_it_started_with(confs, tmp_path, monkeypatch):  # noqa: F811
+def test_a_run_resumes_with_the_seed_axis_it_started_with(confs, tmp_path, monkeypatch):
     """A run started before `seed_axis` existed vmapped its seeds: resumed, it still does, even
     where `auto` would now map them (here every learner counts as big)."""
     from urb_jax.experiment.hybrid import fns
@@ -149,7 +147,7 @@ def test_a_run_resumes_with_the_seed_axis_it_started_with(confs, tmp_path, monke
 
 
 @pytest.mark.slow
-def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa: F811
+def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):
     """A 2-seed run killed in the middle of round 2's SUMO batch, resumed by the second seed's id,
     ends with both seeds' records and metrics equal to the uninterrupted run. The reference run's
     executor calls end: round 2, round 3, 10 // P test batches, the AON day (before them: the
@@ -172,7 +170,7 @@ def test_multi_seed_resume_after_kill_mid_round(pair, confs, tmp_path):  # noqa:
 
 
 @pytest.mark.slow
-def test_human_phase_reuse_equals_own_human_phase(pair, confs, tmp_path):  # noqa: F811
+def test_human_phase_reuse_equals_own_human_phase(pair, confs, tmp_path):
     """Reusing pair_s0's human phase: no human or calibration day reaches the executor, and the
     records and metrics equal pair_s0's (which simulated its own)."""
     import shutil
@@ -188,7 +186,7 @@ def test_human_phase_reuse_equals_own_human_phase(pair, confs, tmp_path):  # noq
     assert json.loads((out.folder / "exp_config.json").read_text())["human_phase_from"] == "src"
 
 
-def test_human_phase_reuse_refuses_a_different_phase(confs, tmp_path):  # noqa: F811
+def test_human_phase_reuse_refuses_a_different_phase(confs, tmp_path):
     src = tmp_path / "src"
     src.mkdir()
     (src / "exp_config.json").write_text(json.dumps({"network": "urb_grid", "env_seed": 7}))

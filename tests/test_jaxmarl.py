@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
-from fakeday import FakeDay
+from support.fakeday import FakeDay
 
 from urb_jax.algorithms.baselines import FixedPolicy
 from urb_jax.experiment.request import BaselineRequest

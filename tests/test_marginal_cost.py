@@ -5,16 +5,14 @@ surrogate's externality, and runs without a surrogate refused."""
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_credit import linear_model, tiny_reward_run
-from test_hybrid_loop import FakeExecutor
+from support.fakeday import FakeExecutor
+from support.linear_congestion import linear_model
+from support.tiny_runs import tiny_reward_run
 
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import ConfigError

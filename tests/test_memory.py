@@ -4,15 +4,11 @@ the fix, instead of being found out by the kernel's OOM killer."""
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_hybrid_loop import FakeExecutor
+from support.fakeday import FakeExecutor
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.hybrid import memory

@@ -1,21 +1,17 @@
 """The optimum and selfish-equilibrium references (`urb-jax optimum`): the objective per behaviour,
 the surrogate searches' local optimality checked by brute force, and the end-to-end reference of a
-finished run whose every number is re-measured on the deterministic SUMO stand-in (tests/fakeday.py)."""
+finished run whose every number is re-measured on the deterministic SUMO stand-in
+(tests/support/fakeday.py)."""
 
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fakeday import FakeDay
-from test_hybrid_loop import FakeExecutor
+from support.fakeday import FakeDay, FakeExecutor
 
 from urb_jax.experiment.optimum import (
     Problem,

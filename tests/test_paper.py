@@ -5,14 +5,11 @@ from __future__ import annotations
 
 import json
 import re
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_catalogue import CATALOGUE, SUITES
+from support.catalogue import CATALOGUE, SUITES
 
 from urb_jax.core.errors import ConfigError
 from urb_jax.experiment.suite import SuiteRun, folders_left, load_suite, remaining

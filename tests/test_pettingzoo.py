@@ -10,8 +10,8 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from fakeday import FakeDay
 from pettingzoo.test import api_test, parallel_api_test
+from support.fakeday import FakeDay
 
 from urb_jax.experiment.pettingzoo_env import UrbAECEnv, UrbParallelEnv
 from urb_jax.game.config import EnvConfig, TaskConfig

@@ -7,7 +7,7 @@ import subprocess
 import numpy as np
 import pandas as pd
 import pytest
-from fakeday import FakeDay
+from support.fakeday import FakeDay
 
 from urb_jax.commands.cli import main
 from urb_jax.experiment.protocol import DayRecord

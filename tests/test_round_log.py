@@ -11,9 +11,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_hybrid_loop import FakeExecutor, tiny_iql_run
+from support.fakeday import FakeExecutor
+from support.tiny_runs import tiny_iql_run
 
 from urb_jax.commands import cli
 from urb_jax.experiment.request import ResumeRequest, TrainRequest

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fakeday import FakeDay
-from test_hybrid_loop import FakeExecutor, _train, confs  # noqa: F401  (module fixture)
+from support.fakeday import FakeDay, FakeExecutor
+from support.tiny_runs import train_iql
 
 from urb_jax.city.routes import RouteParams
 from urb_jax.city.scenario import load_scenario
@@ -85,7 +85,7 @@ def test_the_atomic_writer_gives_the_mode_open_gives(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def train_run(confs, tmp_path_factory):  # noqa: F811
+def train_run(confs, tmp_path_factory):
     """A short train run (fake SUMO) on a fresh cache whose scenario entry is damaged, plus a
     day cache entry on disk as the surrogate's SUMO days keep them."""
     root = tmp_path_factory.mktemp("train-run")
@@ -93,7 +93,7 @@ def train_run(confs, tmp_path_factory):  # noqa: F811
     os.environ["URB_JAX_CACHE"] = str(root / "cache")
     try:
         entry = _corrupt_scenario_cache()
-        (out,) = _train(confs, root / "results", "run")
+        (out,) = train_iql(confs, root / "results", "run")
         scn = load_scenario("urb_grid")
         MemoExecutor(FakeExecutor(), store_dir=cache_dir() / "sumo_days").run_days(
             scn, np.zeros((1, scn.n_agents), np.int64), [42])

@@ -7,13 +7,11 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from digests import result_digests
-from test_hybrid_loop import FakeExecutor, _train, confs  # noqa: F401  (module fixture)
+from support.digests import result_digests
+from support.fakeday import FakeExecutor
+from support.tiny_runs import train_iql
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment import run as run_module
@@ -29,7 +27,7 @@ class Killed(BaseException):
 
 
 @pytest.mark.parametrize("instant", ["after_merge", "after_metrics", "after_done"])
-def test_kill_at_every_instant_of_the_finish_resumes_identically(confs, tmp_path, monkeypatch, instant,  # noqa: F811
+def test_kill_at_every_instant_of_the_finish_resumes_identically(confs, tmp_path, monkeypatch, instant,
                                                                  tiny_iql_reference):
     """The case that lost data: records merged and parts deleted before `status: done`, so the
     resume replayed the test days over a test-only records file (123,200 rows became 40,000)."""
@@ -48,7 +46,7 @@ def test_kill_at_every_instant_of_the_finish_resumes_identically(confs, tmp_path
     else:  # exp_config says done, the merged parts not yet removed
         monkeypatch.setattr(run_folder, "remove_parts", die)
     with pytest.raises(Killed):
-        _train(confs, tmp_path, "k")
+        train_iql(confs, tmp_path, "k")
     monkeypatch.undo()
     folder = tmp_path / "k"
     assert (folder / "records.parts").is_dir()  # the parts outlive every instant before done
@@ -155,7 +153,7 @@ def test_hybrid_config_values_are_validated(tmp_path):
 
 
 
-def test_a_run_killed_outright_keeps_its_time_up_to_its_last_checkpoint(confs, tmp_path, monkeypatch):  # noqa: F811
+def test_a_run_killed_outright_keeps_its_time_up_to_its_last_checkpoint(confs, tmp_path, monkeypatch):
     """A kill -9 writes no wall_time_s to exp_config.json: the resumed run's wall time still counts
     the killed process's time up to its newest checkpoint (before: only the resume's own time)."""
     from urb_jax.experiment.hybrid.trainer import HybridTrainer
@@ -169,7 +167,7 @@ def test_a_run_killed_outright_keeps_its_time_up_to_its_last_checkpoint(confs, t
 
     monkeypatch.setattr(HybridTrainer, "run_round", dies_in_round_2)
     with pytest.raises(Killed):
-        _train(confs, tmp_path, "k")
+        train_iql(confs, tmp_path, "k")
     monkeypatch.undo()
     folder = tmp_path / "k"
     config = json.loads((folder / "exp_config.json").read_text())

@@ -9,10 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fakeday import FakeDay
-from test_hybrid_loop import FakeExecutor
+from support.fakeday import FakeDay, FakeExecutor
 
 from urb_jax.experiment.request import BaselineRequest, ResumeRequest
 from urb_jax.experiment.run import run_baseline

@@ -12,11 +12,11 @@ import os
 import re
 import subprocess
 import sys
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
+from support.blocker import make_blocker
 
 from urb_jax.reporting.day_export import day_routes_xml
 from urb_jax.sumo_bridge import ARRIVED, REMOVED_CAP, REMOVED_STUCK, SumoConfig, run_day
@@ -151,23 +151,6 @@ def test_repeated_days_are_identical(grid_scenario):
     run_day(grid_scenario, np.zeros_like(choices), seed=5)  # something else in between
     b = run_day(grid_scenario, choices, seed=42)
     assert a.same_as(b)
-
-
-def make_blocker(scn, choices, tmp_path, duration: int = 1500) -> tuple[Path, str]:
-    """An extra vehicle stopping `duration` s on the busiest inner edge: its followers stand still.
-
-    (With a permanent blocker the queue behind it drains one vehicle per 600 s under either
-    rule, since every removal lets the followers move up and restarts their clocks.)"""
-    busy = Counter(e for i in range(scn.n_agents)
-                   for e in scn.route_edge_ids(int(scn.agent_od[i]), int(choices[i]))[1:-1])
-    edge = busy.most_common(1)[0][0]
-    path = tmp_path / "blocker.add.xml"
-    path.write_text(
-        f'<additional><route id="blocker_route" edges="{edge}"/>'
-        f'<vehicle id="blocker" route="blocker_route" depart="0" departPos="stop">'
-        f'<stop lane="{edge}_0" endPos="150" duration="{duration}" parking="false"/></vehicle></additional>'
-    )
-    return path, edge
 
 
 def test_deadlocked_day_ends_with_stuck_vehicles_removed(grid_scenario, tmp_path):

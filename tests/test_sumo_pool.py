@@ -3,16 +3,13 @@
 from __future__ import annotations
 
 import logging
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from support.kill_worker import run_killing_a_busy_worker
 
 from urb_jax.sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kill_worker import run_killing_a_busy_worker
 
 pytestmark = pytest.mark.sumo
 
@@ -94,7 +91,7 @@ def test_sumo_error_is_reported_with_its_output(grid_scenario, tmp_path):
 
 
 def test_sumo_warnings_go_to_the_worker_log_not_the_console(grid_scenario, tmp_path, capfd):
-    from test_sumo_bridge import make_blocker
+    from support.blocker import make_blocker
 
     from urb_jax.sumo_bridge import SumoConfig
 

@@ -11,13 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.kill_worker import run_killing_a_busy_worker
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.experiment.request import ResumeRequest
 from urb_jax.sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kill_worker import run_killing_a_busy_worker
 
 pytestmark = pytest.mark.sumo
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import networkx as nx
 import pytest
-from fakeday import FakeDay
+from support.fakeday import FakeDay
 
 from urb_jax.city import scenario as scenario_module
 from urb_jax.city.network import find_network, read_demand

@@ -1,6 +1,6 @@
 """`urb-jax export-urb` against URB's own tools, and URB's names in exp_config.json.
 
-A small real run (a random-CAV baseline on urb_grid, days from tests/fakeday.py) is exported;
+A small real run (a random-CAV baseline on urb_grid, days from tests/support/fakeday.py) is exported;
 URB's unmodified analysis/metrics.py runs on the export in a subprocess and its BenchmarkMetrics
 are compared with ours column by column; URB's leaderboard generator reads our names. Both come
 from ../shared/urb and are skipped, with the reason, where it is absent; the layout test checks
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from fakeday import FakeDay
+from support.fakeday import FakeDay
 
 from urb_jax.algorithms.registry import ALGORITHMS, URB_ALIASES, canonical, urb_algorithm
 from urb_jax.commands.cli import main

@@ -1,6 +1,6 @@
 """A tiny hybrid run on urb_grid with FakeDay for SUMO, in its own process (tests/test_compile.py
-runs it twice on one compile cache): `python tests/compile_cache_run.py OUT_DIR`. Writes
-OUT_DIR/compiles.json: the programs that asked the persistent cache and those it answered."""
+runs it twice on one compile cache): `PYTHONPATH=tests python -m support.compile_cache_run OUT_DIR`.
+Writes OUT_DIR/compiles.json: the programs that asked the persistent cache and those it answered."""
 
 from __future__ import annotations
 
@@ -11,9 +11,7 @@ from pathlib import Path
 
 import jax
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fakeday import FakeExecutor
-
+from support.fakeday import FakeExecutor
 from urb_jax.experiment.request import TrainRequest
 from urb_jax.experiment.run import run_train
 

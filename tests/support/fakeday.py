@@ -1,6 +1,6 @@
 """A deterministic stand-in for a SUMO day: route time = FFT * (1 + load / 20) per (OD, route),
 SUMO duration 2 s shorter (as `sumo_bridge` records them); and FakeExecutor, the DayExecutor that
-runs it (the tests', tests/compile_cache_run.py's and benchmarks/gpu_hybrid_check.py's)."""
+runs it (the tests', tests/support/compile_cache_run.py's and benchmarks/gpu_hybrid_check.py's)."""
 
 from __future__ import annotations
 
