@@ -10,7 +10,7 @@
   against other policies is due to the policy, not to forgetting 200 days of experience.
 
 Each is a `CavPolicy` (init / act / learn over the CAV axis [C]), which the SUMO protocol drives
-day by day (`urb_jax.experiment.protocol`, frozen in test days: it stops calling `learn`);
+day by day (`urb_jax.training.protocol`, frozen in test days: it stops calling `learn`);
 `baseline_policy` gives the same rule as a fixed `Policy` for `collect` / `evaluate`.
 """
 

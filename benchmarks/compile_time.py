@@ -40,8 +40,8 @@ def child(spec: dict) -> None:
     import jax.numpy as jnp
     import numpy as np
 
-    from urb_jax.experiment.request import TrainRequest
-    from urb_jax.experiment.run import run_train
+    from urb_jax.runs.request import TrainRequest
+    from urb_jax.runs.train import run_train
 
     counts: Counter = Counter()
     secs: Counter = Counter()
@@ -67,8 +67,8 @@ def child(spec: dict) -> None:
 def _use_unrolled_levels(jax, jnp, np) -> None:
     """act_by_levels unrolled (one traced step per level), for the comparison with the scan blocks."""
     from urb_jax.algorithms import learner
-    from urb_jax.experiment.hybrid import fns
     from urb_jax.game.rollout import dependency_levels
+    from urb_jax.training.hybrid import fns
 
     def unrolled(env, key, state, policy, levels=None):
         levels = dependency_levels(env) if levels is None else levels

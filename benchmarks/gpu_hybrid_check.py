@@ -28,8 +28,8 @@ from support import compile_cache_run
 from support.compile_cache_run import IQL
 from support.fakeday import FakeExecutor
 
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
-from urb_jax.experiment.run import resume_train, run_train
+from urb_jax.runs.request import ResumeRequest, TrainRequest
+from urb_jax.runs.train import resume_train, run_train
 
 HYBRID = {**compile_cache_run.HYBRID, "train_days": 18}  # 3 rounds
 

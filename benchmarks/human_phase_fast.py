@@ -26,10 +26,10 @@ import numpy as np
 
 from urb_jax.city.scenario import load_scenario
 from urb_jax.core.progress import Progress
-from urb_jax.experiment.human_phase import run_human_phase
-from urb_jax.experiment.hybrid.plan import load_hybrid_config
 from urb_jax.game.config import load_task_config
 from urb_jax.sumo_bridge import ARRIVED, MemoExecutor, SumoPool
+from urb_jax.training.human_phase import run_human_phase
+from urb_jax.training.hybrid.plan import load_hybrid_config
 
 WINDOW = 50  # t_pre: the last 50 human days
 

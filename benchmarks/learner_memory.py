@@ -1,6 +1,6 @@
 """Peak resident memory of a hybrid training against the learner state it holds: fresh, and resumed.
 
-The memory check (urb_jax.experiment.hybrid.memory) refuses a run whose learner state x seeds x
+The memory check (urb_jax.training.hybrid.memory) refuses a run whose learner state x seeds x
 PEAK_OVER_STATE does not fit in the memory available. This measures what that factor is on a real
 run: `urb-jax train` as a child in a scratch folder, killed (SIGKILL) once its first round is
 checkpointed, then `--resume`d to the end. The child's resident set is sampled every 0.1 s (its

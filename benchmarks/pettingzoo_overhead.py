@@ -38,9 +38,9 @@ def worker(network: str, networks_dir: str | None, task_name: str, variant: str,
     import numpy as np
 
     from urb_jax.city.scenario import load_scenario
-    from urb_jax.experiment import pettingzoo_env
     from urb_jax.game.config import load_task_config
     from urb_jax.game.humans import init_humans_jit
+    from urb_jax.interop import pettingzoo as pettingzoo_env
     from urb_jax.sumo_bridge import run_day
 
     scn = load_scenario(network, networks_dir=networks_dir)

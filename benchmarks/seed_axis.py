@@ -1,5 +1,5 @@
 """One learner iteration of a seed group: vmapped seeds against seeds mapped (`lax.map`) in the
-program, per seed and environment, against one seed alone (hybrid.seed_axis, experiment/hybrid/fns.py).
+program, per seed and environment, against one seed alone (hybrid.seed_axis, training/hybrid/fns.py).
 
 The surrogate is the BPR stand-in (benchmarks/standin.py): the learner's cost, not the env's, is
 what differs. Each program is compiled first (not timed) and run twice; the faster run counts.
@@ -30,11 +30,11 @@ from standin import bpr_travel_time_fn
 
 from urb_jax.algorithms.registry import algorithm, load_algo_config
 from urb_jax.city.scenario import load_scenario
-from urb_jax.experiment.hybrid.fns import seeds_map
-from urb_jax.experiment.hybrid.memory import tree_size
 from urb_jax.game.env import RoutingEnv
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.game.rewards import behaviour_coefficients
+from urb_jax.training.hybrid.fns import seeds_map
+from urb_jax.training.hybrid.memory import tree_size
 
 
 def seconds(over, learner, seeds: int) -> float:

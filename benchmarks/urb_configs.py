@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.urb_configs import load_urb_file
+from urb_jax.runs.urb_configs import load_urb_file
 
 DEFAULT = Path(__file__).resolve().parents[1].parent / "shared" / "urb" / "config"
 

@@ -21,18 +21,18 @@ import jax
 import jax.numpy as jnp
 from jaxmarl.wrappers.baselines import LogWrapper
 
-from urb_jax.experiment.jaxmarl_env import JaxMARLRoutingEnv
+from urb_jax.interop.jaxmarl import JaxMARLRoutingEnv
 
 
 def grid_env() -> Any:
     """The embedded urb_grid with URB's config1 task, fresh humans and the uncalibrated surrogate."""
     from urb_jax.city.scenario import load_scenario
-    from urb_jax.experiment.human_phase import uncalibrated
-    from urb_jax.experiment.hybrid.trainer import routing_env_kwargs, surrogate_env
     from urb_jax.game.config import EnvConfig, TaskConfig
     from urb_jax.game.humans import init_humans
     from urb_jax.game.mutation import draw_cavs
     from urb_jax.surrogate import build_static
+    from urb_jax.training.human_phase import uncalibrated
+    from urb_jax.training.hybrid.trainer import routing_env_kwargs, surrogate_env
 
     scn, task = load_scenario("urb_grid"), TaskConfig()
     static = build_static(scn)
@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     ap.add_argument("--results-dir", default="results")
     args = ap.parse_args(argv)
     if args.run:
-        from urb_jax.experiment.outside import surrogate_env_from_run
+        from urb_jax.interop.outside import surrogate_env_from_run
         game = surrogate_env_from_run(args.run).env
     else:
         game = grid_env()
@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     if args.sumo:
         if not args.run:
             ap.error("--sumo needs --run (the human phase it replays)")
-        from urb_jax.experiment.outside import evaluate_on_sumo
+        from urb_jax.interop.outside import evaluate_on_sumo
         res = evaluate_on_sumo(bandit_policy(q), args.run, name="jaxmarl_bandit",
                                results_dir=args.results_dir, overwrite=True)
         out |= {f"sumo_{k}": v for k, v in res.metrics.items()}

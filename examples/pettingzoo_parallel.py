@@ -18,8 +18,8 @@ import argparse
 import numpy as np
 
 from urb_jax.city.scenario import load_scenario
-from urb_jax.experiment.pettingzoo_env import UrbParallelEnv
 from urb_jax.game.config import TaskConfig
+from urb_jax.interop.pettingzoo import UrbParallelEnv
 
 
 class BanditCav:

@@ -47,8 +47,8 @@ def tiny_iql_reference(tiny_iql_confs, tmp_path_factory: pytest.TempPathFactory)
     this run; run once per test process (it is most of such a test's cost). Read it, never write."""
     from support.fakeday import FakeExecutor
 
-    from urb_jax.experiment.request import TrainRequest
-    from urb_jax.experiment.run import run_train
+    from urb_jax.runs.request import TrainRequest
+    from urb_jax.runs.train import run_train
 
     ex = FakeExecutor()
     (out,) = run_train(TrainRequest(alg="iql", exp_id="ref",

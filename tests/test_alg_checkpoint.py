@@ -15,14 +15,14 @@ from urb_jax.algorithms import iql
 from urb_jax.algorithms.configs import IQLConfig
 from urb_jax.algorithms.registry import ALGORITHMS, load_algo_config
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.checkpoints import (
+from urb_jax.surrogate import SumoSample
+from urb_jax.training.checkpoints import (
     RoundMeta,
     restore_checkpoint,
     restore_round,
     save_checkpoint,
     save_round,
 )
-from urb_jax.surrogate import SumoSample
 
 
 def test_checkpoint_round_trip(grid_scenario, tmp_path):

@@ -4,9 +4,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from urb_jax.experiment.request import BaselineRequest
-from urb_jax.experiment.run import run_baseline
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.baseline import run_baseline
+from urb_jax.runs.request import BaselineRequest
 
 pytestmark = pytest.mark.sumo
 

@@ -8,9 +8,9 @@ from support.catalogue import CATALOGUE, SUITES
 
 from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.core.configio import find_config
-from urb_jax.experiment.hybrid.plan import load_hybrid_config
-from urb_jax.experiment.suite import load_suite
 from urb_jax.game.config import load_env_config, load_task_config
+from urb_jax.runs.suite import load_suite
+from urb_jax.training.hybrid.plan import load_hybrid_config
 
 
 def _trains(name: str):

@@ -1,4 +1,4 @@
-"""The surrogate leg's clock (urb_jax.experiment.hybrid.clock): a long round says early what the
+"""The surrogate leg's clock (urb_jax.training.hybrid.clock): a long round says early what the
 training will cost, timed from the host between equal chunks of one compiled scan."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from support.fakeday import FakeExecutor
 
-from urb_jax.experiment.hybrid.clock import LINE_EVERY_S, IterationClock, chunk_len, fmt_duration, run_chunks
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
+from urb_jax.runs.request import ResumeRequest, TrainRequest
+from urb_jax.training.hybrid.clock import LINE_EVERY_S, IterationClock, chunk_len, fmt_duration, run_chunks
 
 
 class FakeTime:
@@ -92,7 +92,7 @@ def test_a_fast_training_gets_no_hint():
 
 
 def test_a_training_run_prints_its_estimate(tmp_path, capsys):
-    from urb_jax.experiment.run import run_train
+    from urb_jax.runs.train import run_train
 
     hyb = {"train_days": 20, "num_envs": 2, "surrogate_days_per_round": 8, "sumo_days_per_round": 2,
            "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
@@ -114,7 +114,7 @@ def test_the_hybrid_hint_goes_to_urbs_own_config_only():
     """A slow round with URB's config1 points to `--alg-conf hybrid`; with the hybrid config itself
     (or any other), the hint says what else would shorten it."""
     from urb_jax.algorithms.registry import load_algo_config
-    from urb_jax.experiment.hybrid.trainer import _slow_hint
+    from urb_jax.training.hybrid.trainer import _slow_hint
 
     assert "--alg-conf hybrid" in _slow_hint("mappo", load_algo_config("mappo", "config1"))
     for conf in ("hybrid", "fast"):
@@ -128,8 +128,8 @@ def test_a_run_with_urbs_config1_gets_the_hybrid_hint(tmp_path, capsys, monkeypa
     """The hint is chosen from the config as given: fitted to the budget (n_iters), URB's config1
     no longer equals the file, and a slow QMIX config1 run on nemours was told only 'fewer
     --train-days'."""
-    from urb_jax.experiment.hybrid import clock
-    from urb_jax.experiment.run import run_train
+    from urb_jax.runs.train import run_train
+    from urb_jax.training.hybrid import clock
 
     monkeypatch.setattr(clock, "SLOW_S", 0.0)  # every training counts as slow
     hyb = {"train_days": 20, "num_envs": 2, "surrogate_days_per_round": 8, "sumo_days_per_round": 2,
@@ -160,8 +160,8 @@ def test_a_big_learner_is_timed_before_training(tmp_path, capsys, monkeypatch):
     """Above PROBE_PARAMS a run says its memory and cost before the first round; the probe has its
     own runner and key, so the records are byte-identical to the same run without it. A resume
     probes again, before restoring the state, for the rounds it has left."""
-    from urb_jax.experiment.hybrid import clock
-    from urb_jax.experiment.run import resume_train, run_train
+    from urb_jax.runs.train import resume_train, run_train
+    from urb_jax.training.hybrid import clock
 
     hyb = {"train_days": 20, "num_envs": 2, "surrogate_days_per_round": 8, "sumo_days_per_round": 2,
            "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,

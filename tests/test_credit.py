@@ -16,10 +16,10 @@ from support.tiny_runs import tiny_reward_run
 
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.request import TrainRequest
-from urb_jax.experiment.run import run_train
 from urb_jax.game.rewards import behaviour_coefficients, credit_rewards, externalities
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.request import TrainRequest
+from urb_jax.runs.train import run_train
 from urb_jax.surrogate import build_static, init_params, predict
 
 

@@ -11,9 +11,9 @@ from urb_jax.algorithms.baselines import make_baseline
 from urb_jax.city.demand import scale_demand
 from urb_jax.core.configio import configs_dir, load_json
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.protocol import PHASE_HUMAN, PHASE_TEST, PHASE_TRAIN, run_experiment
 from urb_jax.game.config import EnvConfig, TaskConfig, load_task_config, task_from_dict
 from urb_jax.game.mutation import draw_cavs
+from urb_jax.training.protocol import PHASE_HUMAN, PHASE_TEST, PHASE_TRAIN, run_experiment
 
 TINY = TaskConfig(ratio_machines=0.25, human_learning_episodes=4, training_eps=3, test_eps=2)
 

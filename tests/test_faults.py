@@ -19,12 +19,13 @@ from support.fakeday import FakeExecutor
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.interrupt import DiskFullError, InterruptedRunError, no_space
-from urb_jax.experiment import checkpoints
-from urb_jax.experiment.checkpoints import latest_checkpoint
-from urb_jax.experiment.human_phase import JOURNAL_DIR
-from urb_jax.experiment.request import BaselineRequest, ResumeRequest, TrainRequest
-from urb_jax.experiment.run import resume_train, run_baseline, run_train
-from urb_jax.experiment.run_folder import machine
+from urb_jax.runs.baseline import run_baseline
+from urb_jax.runs.folder import machine
+from urb_jax.runs.request import BaselineRequest, ResumeRequest, TrainRequest
+from urb_jax.runs.train import resume_train, run_train
+from urb_jax.training import checkpoints
+from urb_jax.training.checkpoints import latest_checkpoint
+from urb_jax.training.human_phase import JOURNAL_DIR
 
 H = 10  # configs/task/test.json
 

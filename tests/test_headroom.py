@@ -6,14 +6,14 @@ from __future__ import annotations
 import pytest
 
 from urb_jax.commands.cli import main
-from urb_jax.experiment.request import BaselineRequest
+from urb_jax.runs.request import BaselineRequest
 
 pytestmark = pytest.mark.sumo
 
 
 @pytest.fixture(scope="module")
 def aon_run(tmp_path_factory):
-    from urb_jax.experiment.run import run_baseline
+    from urb_jax.runs.baseline import run_baseline
 
     return run_baseline(BaselineRequest(model="aon", results_dir=str(tmp_path_factory.mktemp("headroom")),
                                         progress=False), task_overrides={"human_learning_episodes": 5,

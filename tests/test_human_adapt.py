@@ -19,11 +19,11 @@ from support.fakeday import FakeExecutor
 
 from urb_jax.city.scenario import load_scenario
 from urb_jax.core.configio import find_config
-from urb_jax.experiment.hybrid.trainer import HybridTrainer
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
-from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.game.humans import HumanParams, HumanState, act, learn
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.request import ResumeRequest, TrainRequest
+from urb_jax.runs.train import resume_train, run_train
+from urb_jax.training.hybrid.trainer import HybridTrainer
 
 H, E, P = 10, 10, 2
 

@@ -17,13 +17,14 @@ from support.fakeday import FakeDay, FakeExecutor
 from urb_jax.city.scenario import load_scenario
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.progress import Progress
-from urb_jax.experiment.human_phase import run_human_phase, surrogate_human_days
-from urb_jax.experiment.hybrid.plan import HybridConfig
-from urb_jax.experiment.protocol import train_humans, train_humans_on_model
-from urb_jax.experiment.request import BaselineRequest, TrainRequest
-from urb_jax.experiment.run import run_baseline, run_train
 from urb_jax.game.config import TaskConfig
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.baseline import run_baseline
+from urb_jax.runs.request import BaselineRequest, TrainRequest
+from urb_jax.runs.train import run_train
+from urb_jax.training.human_phase import run_human_phase, surrogate_human_days
+from urb_jax.training.hybrid.plan import HybridConfig
+from urb_jax.training.protocol import train_humans, train_humans_on_model
 
 H, S = 70, 20  # 70 human days: up to 20 may run on the surrogate, t_pre's last 50 stay SUMO days
 

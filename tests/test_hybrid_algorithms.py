@@ -11,9 +11,9 @@ from support.digests import result_digests
 from support.fakeday import FakeExecutor
 
 from urb_jax.algorithms.registry import ALGORITHMS
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
-from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.request import ResumeRequest, TrainRequest
+from urb_jax.runs.train import resume_train, run_train
 
 TINY = {
     "iql": {"agent_frames_per_batch": 2, "mlp_depth": 1, "mlp_cells": 16, "minibatch_size": 64},

@@ -16,11 +16,11 @@ from support.tiny_runs import E, H, train_iql
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError
 from urb_jax.core.paths import embedded_networks_dir
-from urb_jax.experiment.checkpoints import latest_checkpoint
-from urb_jax.experiment.hybrid.trainer import HybridTrainer
-from urb_jax.experiment.request import ResumeRequest
-from urb_jax.experiment.run import resume_train
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.request import ResumeRequest
+from urb_jax.runs.train import resume_train
+from urb_jax.training.checkpoints import latest_checkpoint
+from urb_jax.training.hybrid.trainer import HybridTrainer
 
 
 def test_loop_records_and_metric_provenance(tiny_iql_reference):
@@ -210,7 +210,7 @@ def test_sumo_row_under_full_autonomy_has_no_human_mean():
     """A day without humans (Scenario 2) has no human mean: NaN, and no numpy warning in the log."""
     import warnings
 
-    from urb_jax.experiment.hybrid.trainer import sumo_row
+    from urb_jax.training.hybrid.trainer import sumo_row
 
     t = np.array([[3.0, 4.0, 5.0], [3.0, 5.0, 7.0]])  # [P, N] SUMO minutes
     pred = t * 1.1

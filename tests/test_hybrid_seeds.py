@@ -14,10 +14,10 @@ from support.tiny_runs import H
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError
-from urb_jax.experiment.checkpoints import latest_checkpoint
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
-from urb_jax.experiment.run import resume_train, run_train
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.request import ResumeRequest, TrainRequest
+from urb_jax.runs.train import resume_train, run_train
+from urb_jax.training.checkpoints import latest_checkpoint
 
 P, ROUNDS = 2, 3
 
@@ -115,7 +115,7 @@ def test_auto_maps_the_seeds_of_a_big_learner_on_a_cpu_only():
     import jax
     import jax.numpy as jnp
 
-    from urb_jax.experiment.hybrid.fns import MAP_SEEDS_PARAMS, maps_seeds
+    from urb_jax.training.hybrid.fns import MAP_SEEDS_PARAMS, maps_seeds
 
     big = {"w": jax.ShapeDtypeStruct((MAP_SEEDS_PARAMS + 1,), jnp.float32)}
     small = {"w": jax.ShapeDtypeStruct((MAP_SEEDS_PARAMS,), jnp.float32)}
@@ -131,7 +131,7 @@ def test_auto_maps_the_seeds_of_a_big_learner_on_a_cpu_only():
 def test_a_run_resumes_with_the_seed_axis_it_started_with(confs, tmp_path, monkeypatch):
     """A run started before `seed_axis` existed vmapped its seeds: resumed, it still does, even
     where `auto` would now map them (here every learner counts as big)."""
-    from urb_jax.experiment.hybrid import fns
+    from urb_jax.training.hybrid import fns
 
     killed = _train(confs, tmp_path, "old", FakeExecutor(), seeds=[0, 1], stop_after_round=1)
     monkeypatch.setattr(fns, "MAP_SEEDS_PARAMS", 0)

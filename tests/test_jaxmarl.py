@@ -1,4 +1,4 @@
-"""The routing game as a JaxMARL MultiAgentEnv (urb_jax.experiment.jaxmarl_env) and SUMO test days for
+"""The routing game as a JaxMARL MultiAgentEnv (urb_jax.interop.jaxmarl) and SUMO test days for
 outside policies (run_policy, FixedPolicy). The env's travel times here come from a small
 congestion model (the adapter does not care what simulates the day; the surrogate itself is tested
 in test_surrogate_*), so each test compiles in seconds."""
@@ -13,18 +13,18 @@ import pytest
 from support.fakeday import FakeDay
 
 from urb_jax.algorithms.baselines import FixedPolicy
-from urb_jax.experiment.request import BaselineRequest
-from urb_jax.experiment.run import run_baseline, run_policy
 from urb_jax.game.env import RoutingEnv
 from urb_jax.game.humans import aon_routes
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.baseline import run_baseline, run_policy
+from urb_jax.runs.request import BaselineRequest
 
 jaxmarl = pytest.importorskip("jaxmarl", reason="the JaxMARL extra: pip install 'urb-jax[jaxmarl]'")
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv  # noqa: E402
 from jaxmarl.wrappers.baselines import LogWrapper  # noqa: E402
 
-from urb_jax.experiment.jaxmarl_env import JaxMARLRoutingEnv  # noqa: E402
+from urb_jax.interop.jaxmarl import JaxMARLRoutingEnv  # noqa: E402
 
 
 def congested_env(scn) -> RoutingEnv:

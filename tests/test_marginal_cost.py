@@ -16,11 +16,11 @@ from support.tiny_runs import tiny_reward_run
 
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.request import TrainRequest
-from urb_jax.experiment.run import run_train
 from urb_jax.game.config import TaskConfig, load_task
 from urb_jax.game.rewards import behaviour_coefficients, cav_rewards, externalities, marginal_cost_rewards
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.request import TrainRequest
+from urb_jax.runs.train import run_train
 
 URB_TASKS = Path(__file__).resolve().parents[2] / "shared" / "urb" / "config" / "task_config"
 
@@ -80,7 +80,7 @@ def test_marginal_cost_without_a_surrogate_is_refused(confs, tmp_path):
 
 
 def test_the_pettingzoo_envs_refuse_rewards_they_cannot_pay(grid_scenario):
-    from urb_jax.experiment.pettingzoo_env import UrbParallelEnv
+    from urb_jax.interop.pettingzoo import UrbParallelEnv
 
     for task in (TaskConfig(marginal_cost_beta=1.0), TaskConfig(reward_credit="marginal")):
         with pytest.raises(ConfigError, match="without a surrogate"):

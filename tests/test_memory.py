@@ -1,4 +1,4 @@
-"""urb_jax.experiment.hybrid.memory: a learner that would not fit is refused before training, with
+"""urb_jax.training.hybrid.memory: a learner that would not fit is refused before training, with
 the fix, instead of being found out by the kernel's OOM killer."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import pytest
 from support.fakeday import FakeExecutor
 
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.experiment.hybrid import memory
-from urb_jax.experiment.request import TrainRequest
+from urb_jax.runs.request import TrainRequest
+from urb_jax.training.hybrid import memory
 
 MB = 1024**2
 
@@ -51,7 +51,7 @@ def test_on_an_accelerator_its_own_free_memory_counts(monkeypatch):
 
 
 def test_a_run_that_would_not_fit_stops_before_training(tmp_path, monkeypatch):
-    from urb_jax.experiment.run import run_train
+    from urb_jax.runs.train import run_train
 
     monkeypatch.setattr(memory, "available_bytes", lambda: 1 * MB)
     hyb = {"train_days": 20, "num_envs": 2, "surrogate_days_per_round": 8, "sumo_days_per_round": 2,

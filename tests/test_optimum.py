@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 from support.fakeday import FakeDay, FakeExecutor
 
-from urb_jax.experiment.optimum import (
+from urb_jax.analysis.optimum import (
     Problem,
     SearchConfig,
     best_response,
@@ -24,12 +24,12 @@ from urb_jax.experiment.optimum import (
     run_references,
     single_moves,
 )
-from urb_jax.experiment.request import TrainRequest
-from urb_jax.experiment.run import run_train
 from urb_jax.game.humans import aon_routes
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.game.rewards import behaviour_coefficients
 from urb_jax.reporting.leaderboard import collect
+from urb_jax.runs.request import TrainRequest
+from urb_jax.runs.train import run_train
 from urb_jax.surrogate import build_static, init_params
 
 

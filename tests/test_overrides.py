@@ -13,10 +13,11 @@ import pytest
 from urb_jax.commands import cli
 from urb_jax.core.configio import from_dict, in_section, parse_overrides, read_json
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment import run
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
-from urb_jax.experiment.urb_configs import OVERRIDES_KEY, TRAIN_SECTIONS
 from urb_jax.game.config import TaskConfig, load_task
+from urb_jax.runs import baseline
+from urb_jax.runs import train as run
+from urb_jax.runs.request import ResumeRequest, TrainRequest
+from urb_jax.runs.urb_configs import OVERRIDES_KEY, TRAIN_SECTIONS
 
 URB_CONFIG = Path(__file__).resolve().parents[1].parent / "shared" / "urb" / "config"
 REQUEST = TrainRequest(net="urb_grid")
@@ -162,7 +163,7 @@ def test_baseline_overrides_task_and_env_and_records_them(tmp_path, monkeypatch,
         seen.update(config=config, task=task, env=env)
         raise ConfigError("stop here")
 
-    monkeypatch.setattr(run, "_run_baseline_days", stop)
+    monkeypatch.setattr(baseline, "_run_baseline_days", stop)
     argv = ["baseline", "--results-dir", str(tmp_path), "--no-progress", "--set", "task.test_eps=3",
             "--set", "env.number_of_paths=3"]
     assert cli.main(argv) == 2 and "stop here" in capsys.readouterr().err

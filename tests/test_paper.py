@@ -12,11 +12,11 @@ import pytest
 from support.catalogue import CATALOGUE, SUITES
 
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.suite import SuiteRun, folders_left, load_suite, remaining
-from urb_jax.experiment.suite import status as status_of
 from urb_jax.reporting.leaderboard import collect_folders
 from urb_jax.reporting.paper import COLUMNS, EntryResults, load_paper_numbers, paper_file, paper_markdown
 from urb_jax.reporting.urb_names import baseline_names, train_names
+from urb_jax.runs.suite import SuiteRun, folders_left, load_suite, remaining
+from urb_jax.runs.suite import status as status_of
 
 
 def test_the_data_file_covers_exactly_the_papers_catalogue():
@@ -166,7 +166,7 @@ def test_a_row_that_names_a_missing_row_says_which(scenario1_partly_run):
 def test_suite_paper_writes_the_page_from_a_results_folder(tmp_path, scenario1_partly_run, monkeypatch):
     """`urb-jax suite --paper`: finished runs found by the catalogue's run ids, the suite's figures
     copied beside the page and linked relative to it, every other entry 'not run yet'."""
-    import urb_jax.experiment.suite as suite
+    import urb_jax.runs.suite as suite
     from urb_jax.commands.cli import main
 
     def fake_report(title, folders, out_dir, preamble=""):  # the suite's report needs day records
@@ -230,7 +230,7 @@ def test_the_page_keeps_the_runs_of_earlier_generations(tmp_path, monkeypatch, c
     the page, through its ledger, when it is generated again from another folder with other runs; a
     run finished again replaces its recorded numbers; figures made before stay linked; the suite
     on the second machine skips the runs the ledger records."""
-    import urb_jax.experiment.suite as suite
+    import urb_jax.runs.suite as suite
     from urb_jax.commands.cli import main
 
     monkeypatch.setattr(suite, "write_report", _fake_report)
@@ -314,7 +314,7 @@ def test_a_generation_that_would_drop_finished_runs_is_refused(tmp_path, capsys,
     """A page made before the ledger existed shows finished runs that no results
     folder here holds: generating it again from an empty folder would lose them, so it is refused
     (exit 2, naming the entries and the fix) and the page is left as it was; --allow-fewer writes."""
-    import urb_jax.experiment.suite as suite
+    import urb_jax.runs.suite as suite
     from urb_jax.commands.cli import main
 
     monkeypatch.setattr(suite, "write_report", _fake_report)
@@ -337,7 +337,7 @@ def test_the_finished_seeds_of_an_unfinished_run_outlive_their_machine(tmp_path,
     """A run's seeds can take longer than a machine lives (Ingolstadt's QMIX: 2.5 h a seed): each seed
     finished goes to the ledger at once, though its run is not shown until all its seeds are; the
     next machine runs only the seeds the ledger lacks, and the page then shows the run whole."""
-    import urb_jax.experiment.suite as suite
+    import urb_jax.runs.suite as suite
     from urb_jax.commands.cli import main
 
     monkeypatch.setattr(suite, "write_report", _fake_report)

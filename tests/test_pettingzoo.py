@@ -13,7 +13,6 @@ import pytest
 from pettingzoo.test import api_test, parallel_api_test
 from support.fakeday import FakeDay
 
-from urb_jax.experiment.pettingzoo_env import UrbAECEnv, UrbParallelEnv
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.observations import (
     OBSERVATION_TYPES,
@@ -21,6 +20,7 @@ from urb_jax.game.observations import (
     make_observation_spec,
     observe,
 )
+from urb_jax.interop.pettingzoo import UrbAECEnv, UrbParallelEnv
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = TaskConfig(ratio_machines=0.05, human_learning_episodes=2, test_eps=0)

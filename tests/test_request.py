@@ -12,8 +12,8 @@ import pytest
 from urb_jax.commands import cli
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.paths import embedded_networks_dir
-from urb_jax.experiment import run
-from urb_jax.experiment.request import BaselineRequest, ResumeRequest, TrainRequest, request_fields
+from urb_jax.runs import train as run
+from urb_jax.runs.request import BaselineRequest, ResumeRequest, TrainRequest, request_fields
 
 
 @pytest.mark.parametrize(("fields", "message"), [

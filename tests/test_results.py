@@ -10,16 +10,6 @@ import pytest
 from support.fakeday import FakeDay
 
 from urb_jax.commands.cli import main
-from urb_jax.experiment.protocol import DayRecord
-from urb_jax.experiment.request import BaselineRequest
-from urb_jax.experiment.run import run_baseline
-from urb_jax.experiment.run_folder import (
-    ResultsExistError,
-    _cpu,
-    create_results_dir,
-    machine,
-    source_commit,
-)
 from urb_jax.reporting.leaderboard import aggregate, collect
 from urb_jax.reporting.records import (
     PARTS_DIR,
@@ -28,6 +18,16 @@ from urb_jax.reporting.records import (
     read_records,
     remove_parts,
 )
+from urb_jax.runs.baseline import run_baseline
+from urb_jax.runs.folder import (
+    ResultsExistError,
+    _cpu,
+    create_results_dir,
+    machine,
+    source_commit,
+)
+from urb_jax.runs.request import BaselineRequest
+from urb_jax.training.protocol import DayRecord
 
 TINY = {"human_learning_episodes": 3, "training_eps": 2, "test_eps": 2}
 

@@ -15,9 +15,9 @@ from support.fakeday import FakeExecutor
 from support.tiny_runs import tiny_iql_run
 
 from urb_jax.commands import cli
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
-from urb_jax.experiment.round_log import round_log
-from urb_jax.experiment.run import resume_train, run_train
+from urb_jax.runs.request import ResumeRequest, TrainRequest
+from urb_jax.runs.round_log import round_log
+from urb_jax.runs.train import resume_train, run_train
 
 pytest.importorskip("tensorboardX", reason="the 'tensorboard' extra (tensorboardX) is not installed")
 event_accumulator = pytest.importorskip("tensorboard.backend.event_processing.event_accumulator",
@@ -87,7 +87,7 @@ def test_a_run_without_log_does_not_need_the_extra(tmp_path, monkeypatch):
     """Without --log nothing imports tensorboardX: not the run's modules, not the round hook."""
     import subprocess
 
-    code = ("import sys, urb_jax.commands.cli, urb_jax.experiment.run, urb_jax.experiment.round_log; "
+    code = ("import sys, urb_jax.commands.cli, urb_jax.runs.train, urb_jax.runs.round_log; "
             "print('tensorboardX' in sys.modules)")
     env = {"PYTHONPATH": str(Path(__file__).resolve().parents[1]), "PATH": ""}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)

@@ -19,10 +19,10 @@ from urb_jax.city.routes import RouteParams
 from urb_jax.city.scenario import load_scenario
 from urb_jax.core import atomic
 from urb_jax.core.paths import cache_dir
-from urb_jax.experiment.request import BaselineRequest
-from urb_jax.experiment.run import run_baseline
-from urb_jax.experiment.run_log import RUN_LOG, log_run_to, run_log
 from urb_jax.game.config import load_env_config
+from urb_jax.runs.baseline import run_baseline
+from urb_jax.runs.request import BaselineRequest
+from urb_jax.runs.run_log import RUN_LOG, log_run_to, run_log
 from urb_jax.sumo_bridge.memo import MemoExecutor
 
 TINY = {"human_learning_episodes": 3, "training_eps": 2, "test_eps": 2}

@@ -14,12 +14,12 @@ from support.fakeday import FakeExecutor
 from support.tiny_runs import train_iql
 
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.experiment import run as run_module
-from urb_jax.experiment import run_folder
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
-from urb_jax.experiment.run import resume_train
-from urb_jax.experiment.run_folder import ResultsExistError, create_results_dir
 from urb_jax.reporting import records as records_module
+from urb_jax.runs import folder as run_folder
+from urb_jax.runs import train as run_module
+from urb_jax.runs.folder import ResultsExistError, create_results_dir
+from urb_jax.runs.request import ResumeRequest, TrainRequest
+from urb_jax.runs.train import resume_train
 
 
 class Killed(BaseException):
@@ -98,7 +98,7 @@ def test_results_dir_that_is_a_file_is_named(tmp_path):
 
 HOLD = """
 import sys, time
-from urb_jax.experiment.run_folder import create_results_dir
+from urb_jax.runs.folder import create_results_dir
 folder = create_results_dir(sys.argv[1], "same", overwrite=True)
 (folder / "exp_config.json").write_text("{}")
 print("locked", flush=True)
@@ -141,7 +141,7 @@ def test_train_days_zero_or_negative_is_refused(tmp_path, days):
 def test_hybrid_config_values_are_validated(tmp_path):
     from urb_jax.core.configio import load_json
     from urb_jax.core.errors import ConfigError
-    from urb_jax.experiment.hybrid.plan import HybridConfig
+    from urb_jax.training.hybrid.plan import HybridConfig
 
     bad = tmp_path / "hyb.json"
     bad.write_text(json.dumps({"num_envs": 0}))
@@ -156,7 +156,7 @@ def test_hybrid_config_values_are_validated(tmp_path):
 def test_a_run_killed_outright_keeps_its_time_up_to_its_last_checkpoint(confs, tmp_path, monkeypatch):
     """A kill -9 writes no wall_time_s to exp_config.json: the resumed run's wall time still counts
     the killed process's time up to its newest checkpoint (before: only the resume's own time)."""
-    from urb_jax.experiment.hybrid.trainer import HybridTrainer
+    from urb_jax.training.hybrid.trainer import HybridTrainer
 
     real_round = HybridTrainer.run_round
 

@@ -1,4 +1,4 @@
-"""`urb_jax.experiment.suite`: a list of runs as one resumable job, then its tables and figures."""
+"""`urb_jax.runs.suite`: a list of runs as one resumable job, then its tables and figures."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 from support.fakeday import FakeDay, FakeExecutor
 
-from urb_jax.experiment.request import BaselineRequest, ResumeRequest
-from urb_jax.experiment.run import run_baseline
-from urb_jax.experiment.suite import SuiteRun, run_progress, run_suite, status, write_report
 from urb_jax.reporting.records import read_records
+from urb_jax.runs.baseline import run_baseline
+from urb_jax.runs.request import BaselineRequest, ResumeRequest
+from urb_jax.runs.suite import SuiteRun, run_progress, run_suite, status, write_report
 
 
 def _runs(conf: Path, executor: FakeExecutor, day: FakeDay, **train_extra) -> list[SuiteRun]:
@@ -83,7 +83,7 @@ def test_a_run_another_process_is_writing_is_running_not_stopped(tmp_path):
     run = SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test", "day_fn": FakeDay()})
     assert status(results, run) == "stopped"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, pathlib; from urb_jax.experiment.run_folder import lock_run; "
+        [sys.executable, "-c", "import sys, pathlib; from urb_jax.runs.folder import lock_run; "
          f"lock_run(pathlib.Path({str(results / 'aon')!r})); print('locked', flush=True); sys.stdin.read()"],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
@@ -174,7 +174,7 @@ def test_bad_suite_files_exit_2_naming_the_field(tmp_path, capsys, runs, message
 
 def test_every_shipped_suite_loads():
     from urb_jax.core.configio import configs_dir
-    from urb_jax.experiment.suite import load_suite
+    from urb_jax.runs.suite import load_suite
 
     files = sorted((configs_dir() / "suites").glob("*.json"))
     assert files
@@ -254,7 +254,7 @@ def test_resume_finishes_every_seed_group_of_the_run(tmp_path):
     """Seeds trained one group at a time (Ingolstadt's QMIX): a resume, by the suite or by any
     seed's id, finishes every unfinished group, not only the named seed's (a resume that continued seed 0's
     group alone, then reported, would leave seeds 1 and 2 never trained)."""
-    from urb_jax.experiment.run import _resume_group, resume_train
+    from urb_jax.runs.train import _resume_group, resume_train
 
     conf = tmp_path / "hyb.json"
     conf.write_text(json.dumps({"train_days": 12, "num_envs": 2, "surrogate_days_per_round": 4,

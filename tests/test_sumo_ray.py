@@ -14,7 +14,7 @@ import pytest
 from support.kill_worker import run_killing_a_busy_worker
 
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.experiment.request import ResumeRequest
+from urb_jax.runs.request import ResumeRequest
 from urb_jax.sumo_bridge import InProcessExecutor, SumoDayError, SumoPool
 
 pytestmark = pytest.mark.sumo
@@ -226,7 +226,7 @@ def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypat
     import json
     import types
 
-    from urb_jax.experiment import run
+    from urb_jax.runs import train as run
 
     for exp in ("a", "b"):  # a killed run recorded with --executor ray --ray-address ...
         (tmp_path / exp).mkdir()

@@ -90,9 +90,9 @@ def test_cached_days_are_reused(grid_days):
 def test_the_public_calibration_is_the_training_runs_own(grid_days):
     """`urb_jax.calibrate` gives exactly the surrogate a training run starts from on the same days
     (the smooth fit, then each driven (agent, route)'s residual shrunk by count / (count + 2))."""
-    from urb_jax.experiment import human_phase
-    from urb_jax.experiment.hybrid.plan import HybridConfig
     from urb_jax.surrogate.calibrate import uncalibrated, without_bias
+    from urb_jax.training import human_phase
+    from urb_jax.training.hybrid.plan import HybridConfig
 
     scn, static, _, train, _, _ = grid_days
     params = calibrate(scn, train, fit=FitConfig(steps=60), static=static)

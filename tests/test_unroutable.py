@@ -19,9 +19,9 @@ from urb_jax.city.scenario import load_scenario
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import NetworkError
 from urb_jax.core.paths import cache_dir, embedded_networks_dir
-from urb_jax.experiment.request import BaselineRequest
-from urb_jax.experiment.run import run_baseline
 from urb_jax.reporting.day_export import scenario_of_run
+from urb_jax.runs.baseline import run_baseline
+from urb_jax.runs.request import BaselineRequest
 
 TINY = {"human_learning_episodes": 3, "training_eps": 2, "test_eps": 2}
 

@@ -15,9 +15,10 @@ import pytest
 
 from urb_jax.commands import cli
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment import run
-from urb_jax.experiment.request import BaselineRequest, TrainRequest
-from urb_jax.experiment.urb_configs import CONFIG_ALIASES_KEY, load_urb_file
+from urb_jax.runs import baseline
+from urb_jax.runs import train as run
+from urb_jax.runs.request import BaselineRequest, TrainRequest
+from urb_jax.runs.urb_configs import CONFIG_ALIASES_KEY, load_urb_file
 
 URB = Path(__file__).resolve().parents[1].parent / "shared" / "urb"
 CONFIG = URB / "config"
@@ -169,7 +170,9 @@ def no_simulation(monkeypatch: pytest.MonkeyPatch) -> None:
 
     for name in ("run_day", "SumoPool", "InProcessExecutor", "RayExecutor", "make_executor",
                  "run_human_phase", "train_group"):
-        monkeypatch.setattr(run, name, boom)
+        for module in (run, baseline):  # wherever a run would reach it
+            if hasattr(module, name):
+                monkeypatch.setattr(module, name, boom)
 
 
 def _dry(tmp_path: Path, *extra: str) -> list[str]:
@@ -220,8 +223,8 @@ def test_baseline_alg_conf_sets_training_days(tmp_path) -> None:
     conf = tmp_path / "algo_config" / "baseline" / "c.json"
     conf.parent.mkdir(parents=True)
     conf.write_text(json.dumps({"training_eps": 7}))
-    loaded, task_keys = run._baseline_configs(BaselineRequest(alg_conf=str(conf)), None)
+    loaded, task_keys = baseline._baseline_configs(BaselineRequest(alg_conf=str(conf)), None)
     assert task_keys == {"training_eps": 7} and loaded["alg"].config.training_eps == 7
     req = BaselineRequest(alg_conf=str(conf), overrides=["alg.training_eps=9"])
-    _, task_keys = run._baseline_configs(req, None)
+    _, task_keys = baseline._baseline_configs(req, None)
     assert task_keys == {"training_eps": 9}

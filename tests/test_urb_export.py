@@ -24,12 +24,12 @@ from support.fakeday import FakeDay
 from urb_jax.algorithms.registry import ALGORITHMS, URB_ALIASES, canonical, urb_algorithm
 from urb_jax.commands.cli import main
 from urb_jax.core.errors import ConfigError, UrbJaxError
-from urb_jax.experiment.request import BaselineRequest
-from urb_jax.experiment.run import run_baseline
 from urb_jax.reporting.leaderboard import aggregate, collect
 from urb_jax.reporting.records import read_records
 from urb_jax.reporting.urb_export import export_urb
 from urb_jax.reporting.urb_names import train_names
+from urb_jax.runs.baseline import run_baseline
+from urb_jax.runs.request import BaselineRequest
 
 URB = Path(__file__).resolve().parents[1].parent / "shared" / "urb"
 URB_METRICS = URB / "analysis" / "metrics.py"

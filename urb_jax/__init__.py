@@ -39,13 +39,13 @@ _EXPORTS = {
     "calibrate": "urb_jax.surrogate.calibrate",
     "build_static": "urb_jax.surrogate.model",
     "predict": "urb_jax.surrogate.model",
-    "TrainRequest": "urb_jax.experiment.request",
-    "ResumeRequest": "urb_jax.experiment.request",
-    "BaselineRequest": "urb_jax.experiment.request",
-    "run_train": "urb_jax.experiment.run",
-    "resume_train": "urb_jax.experiment.run",
-    "run_baseline": "urb_jax.experiment.run",
-    "RunResult": "urb_jax.experiment.run",
+    "TrainRequest": "urb_jax.runs.request",
+    "ResumeRequest": "urb_jax.runs.request",
+    "BaselineRequest": "urb_jax.runs.request",
+    "run_train": "urb_jax.runs.train",
+    "resume_train": "urb_jax.runs.train",
+    "run_baseline": "urb_jax.runs.baseline",
+    "RunResult": "urb_jax.runs.setup",
     "read_records": "urb_jax.reporting.records",
     "run_metrics": "urb_jax.reporting.records",
     "compute_metrics": "urb_jax.reporting.metrics",
@@ -63,10 +63,12 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time __getattr__
 
     from urb_jax.city.routes import RouteParams
     from urb_jax.city.scenario import Scenario, load_scenario
-    from urb_jax.experiment.request import BaselineRequest, ResumeRequest, TrainRequest
-    from urb_jax.experiment.run import RunResult, resume_train, run_baseline, run_train
     from urb_jax.reporting.metrics import compute_metrics
     from urb_jax.reporting.records import read_records, run_metrics
+    from urb_jax.runs.baseline import run_baseline
+    from urb_jax.runs.request import BaselineRequest, ResumeRequest, TrainRequest
+    from urb_jax.runs.setup import RunResult
+    from urb_jax.runs.train import resume_train, run_train
     from urb_jax.sumo_bridge.sim import run_day, run_days
     from urb_jax.sumo_bridge.types import DayResult
     from urb_jax.surrogate.calibrate import SumoSample, calibrate

@@ -12,8 +12,8 @@ from pathlib import Path
 import jax
 
 from support.fakeday import FakeExecutor
-from urb_jax.experiment.request import TrainRequest
-from urb_jax.experiment.run import run_train
+from urb_jax.runs.request import TrainRequest
+from urb_jax.runs.train import run_train
 
 HYBRID = {"train_days": 12, "num_envs": 2, "surrogate_days_per_round": 4, "sumo_days_per_round": 2,
           "sumo_updates": 1, "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2,

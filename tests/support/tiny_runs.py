@@ -8,8 +8,8 @@ from pathlib import Path
 
 from support.fakeday import FakeExecutor
 from urb_jax.core.configio import find_config
-from urb_jax.experiment.request import TrainRequest
-from urb_jax.experiment.run import run_train
+from urb_jax.runs.request import TrainRequest
+from urb_jax.runs.train import run_train
 
 H, E = 10, 10  # configs/task/test.json: human days, test days
 

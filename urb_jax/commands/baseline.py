@@ -1,5 +1,5 @@
 """`urb-jax baseline`: a URB baseline experiment (aon, random, human) with every day in SUMO.
-The run itself is `urb_jax.experiment.run.run_baseline`; this module parses and prints."""
+The run itself is `urb_jax.runs.baseline.run_baseline`; this module parses and prints."""
 
 from __future__ import annotations
 
@@ -34,8 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from urb_jax.experiment.request import BaselineRequest
-    from urb_jax.experiment.run import run_baseline
+    from urb_jax.runs.baseline import run_baseline
+    from urb_jax.runs.request import BaselineRequest
 
     out = run_baseline(BaselineRequest(
         model=args.model, net=args.net, task_conf=args.task_conf, env_conf=args.env_conf,

@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from urb_jax.experiment.optimum import SearchConfig, run_references
+    from urb_jax.analysis.optimum import SearchConfig, run_references
 
     cfg = SearchConfig(objective=args.objective, sumo_rounds=args.sumo_rounds, relax_steps=args.relax_steps,
                        seed=args.seed)

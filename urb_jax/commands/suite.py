@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from urb_jax.core.configio import find_config
-    from urb_jax.experiment.suite import load_suite, paper_report, run_suite, select, status, write_report
+    from urb_jax.runs.suite import load_suite, paper_report, run_suite, select, status, write_report
 
     if args.paper:
         print(f"paper: {paper_report(args.results_dir, args.out or 'docs/paper.md', args.allow_fewer)}")
@@ -74,8 +74,8 @@ def _recorded(args: argparse.Namespace) -> dict[str, set[str]]:
     a ledger file; a suite that is not a catalogue entry has none)."""
     from pathlib import Path
 
-    from urb_jax.experiment.suite import recorded_runs
     from urb_jax.reporting.paper import load_paper_numbers, read_ledger
+    from urb_jax.runs.suite import recorded_runs
 
     if args.ledger.lower() == "none" or not Path(args.ledger).is_file():
         return {}
@@ -89,8 +89,8 @@ def _status(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from urb_jax.core.configio import find_config
-    from urb_jax.experiment.suite import STATES, load_suite, run_progress, select, status
     from urb_jax.reporting.paper import load_paper_numbers
+    from urb_jax.runs.suite import STATES, load_suite, run_progress, select, status
 
     results, recorded = Path(args.results_dir), _recorded(args)
 
@@ -117,7 +117,7 @@ def _status(args: argparse.Namespace) -> int:
 def _list(asked: bool) -> int:
     """Every shipped suite: id, title, and what it runs (train runs x seeds, baselines)."""
     from urb_jax.core.configio import configs_dir
-    from urb_jax.experiment.suite import load_suite
+    from urb_jax.runs.suite import load_suite
 
     for path in sorted((configs_dir() / "suites").glob("*.json")):
         spec = load_suite(path)

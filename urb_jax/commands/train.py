@@ -1,6 +1,6 @@
 """`urb-jax train`: a URB experiment with an RL algorithm, trained by the hybrid loop
-(surrogate + SUMO, `urb_jax.experiment.hybrid`); every metric comes from SUMO days. The run
-itself is `urb_jax.experiment.run`; this module parses and prints."""
+(surrogate + SUMO, `urb_jax.training.hybrid`); every metric comes from SUMO days. The run
+itself is `urb_jax.runs.train`; this module parses and prints."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import argparse
 
 from urb_jax.commands.common import add_network_flags, add_set_flag
 from urb_jax.core.choices import ALGORITHM_URB_NAMES, EXECUTORS, LOGGERS, MODES, TRAIN_SECTIONS, URB_ALIASES
-from urb_jax.experiment.request import ResumeRequest, TrainRequest
+from urb_jax.runs.request import ResumeRequest, TrainRequest
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing
 if TYPE_CHECKING:
-    from urb_jax.experiment.run import RunResult
+    from urb_jax.runs.setup import RunResult
 
 METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_learning", "delta_V")
 
@@ -84,7 +84,7 @@ def resume_request_of(args: argparse.Namespace) -> ResumeRequest:
 
 
 def run(args: argparse.Namespace) -> int:
-    from urb_jax.experiment.run import resume_train, run_train
+    from urb_jax.runs.train import resume_train, run_train
 
     if args.dry_run:
         return dry_run(args)
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
 def dry_run(args: argparse.Namespace) -> int:
     """Print the experiment `run` would start; errors reach the CLI as exit code 2 with the reason."""
     from urb_jax.core.errors import UrbJaxError
-    from urb_jax.experiment.dry_run import describe, plan_train
+    from urb_jax.runs.dry_run import describe, plan_train
 
     if args.resume:
         raise UrbJaxError("--dry-run checks a new run's configs; --resume continues a recorded run whose "

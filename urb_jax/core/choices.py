@@ -27,9 +27,9 @@ URB_ALIASES: dict[str, str] = {urb: name for name, urb in ALGORITHM_URB_NAMES.it
                                if urb not in ALGORITHM_URB_NAMES}
 
 BASELINE_MODELS = ("aon", "random", "human")  # urb_jax.algorithms.baselines.BASELINES, in this order
-MODES = ("hybrid", "sumo", "surrogate")  # how `urb-jax train` trains (urb_jax.experiment.hybrid.plan)
-EXECUTORS = ("pool", "ray")  # where a train run's SUMO days run (urb_jax.experiment.run.make_executor)
-LOGGERS = ("tensorboard",)  # `urb-jax train --log` (urb_jax.experiment.round_log)
+MODES = ("hybrid", "sumo", "surrogate")  # how `urb-jax train` trains (urb_jax.training.hybrid.plan)
+EXECUTORS = ("pool", "ray")  # where a train run's SUMO days run (urb_jax.runs.train.make_executor)
+LOGGERS = ("tensorboard",)  # `urb-jax train --log` (urb_jax.runs.round_log)
 TRAIN_SECTIONS = ("task", "env", "alg", "hybrid")  # --set SECTION.KEY=VALUE of `urb-jax train`
 BASELINE_SECTIONS = ("task", "env", "alg")  # --set SECTION.KEY=VALUE of `urb-jax baseline`
 STUCK_RULES = ("urb", "routerl", "sumo")  # urb_jax.sumo_bridge.config.SumoConfig.stuck_rule

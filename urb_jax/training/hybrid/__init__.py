@@ -4,7 +4,7 @@
 Seeds train together (`trainer.train_group`): the learner state has a leading seed axis, every
 jitted piece (`fns.build_fns`) is vmapped over it, and each round's SUMO days of all seeds go to
 the executor as one batch. Phases (one results folder per training seed, URB layout):
-1. human learning: H SUMO days (`urb_jax.experiment.human_phase`, t_pre = last 50);
+1. human learning: H SUMO days (`urb_jax.training.human_phase`, t_pre = last 50);
 2. mutation (`draw_cavs`), surrogate calibration on the last `calib_human_days` human days plus
    `calib_varied_days` SUMO days of varied joint actions (not experiment days, not in records);
 3. rounds (`plan.plan_rounds`): `surrogate_days_per_round` env-days of learner iterations on the
@@ -12,7 +12,7 @@ the executor as one batch. Phases (one results folder per training seed, URB lay
    hybrid/sumo) played by the current exploring policies (CAVs act in departure order on the real
    humans' choices), then `sumo_updates` updates on those days, then (hybrid) a refit on
    `refit_days` days drawn from every SUMO day so far; a checkpoint ends each round
-   (`urb_jax.experiment.checkpoints`);
+   (`urb_jax.training.checkpoints`);
 4. test: `test_eps` SUMO days with frozen (greedy) policies.
 
 Budget: `train_days` URB-equivalent training days = surrogate env-days + SUMO training days.

@@ -6,7 +6,7 @@ again skips the runs that finished, resumes the ones that were stopped (`resume_
 newest checkpoint), and starts the others; so a killed suite continues where it was. Every run
 prints its own progress; the suite adds a line per run. Each human phase is simulated once per
 results folder: a new run replays an earlier run's of the suite, or any other finished run's in
-the folder, where they match (`human_phase.first_reusable`).
+the folder, where they match (`urb_jax.runs.setup.first_reusable`).
 """
 
 from __future__ import annotations
@@ -25,10 +25,6 @@ import pandas as pd
 from urb_jax.core.atomic import write_bytes, write_text
 from urb_jax.core.configio import find_config
 from urb_jax.core.errors import ConfigError, UrbJaxError
-from urb_jax.experiment.request import BaselineRequest, ResumeRequest, TrainRequest, request_fields
-from urb_jax.experiment.run import resume_train, run_baseline, run_train
-from urb_jax.experiment.run_folder import run_status, run_writer, train_run_names
-from urb_jax.experiment.standing import seed_groups
 from urb_jax.reporting.leaderboard import collect_folders
 from urb_jax.reporting.paper import (
     EntryResults,
@@ -39,6 +35,11 @@ from urb_jax.reporting.paper import (
     read_ledger,
 )
 from urb_jax.reporting.suite_report import suite_figures, suite_tables
+from urb_jax.runs.baseline import run_baseline
+from urb_jax.runs.folder import run_status, run_writer, train_run_names
+from urb_jax.runs.request import BaselineRequest, ResumeRequest, TrainRequest, request_fields
+from urb_jax.runs.standing import seed_groups
+from urb_jax.runs.train import resume_train, run_train
 
 KINDS = ("train", "baseline")
 

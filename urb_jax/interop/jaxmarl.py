@@ -3,7 +3,7 @@
 JaxMARL's baselines (IPPO, MAPPO, IQL, ...) expect `reset(key) -> (obs dict, state)`,
 `step(key, state, actions dict) -> (obs, state, rewards, dones, infos)`, `agents`,
 `observation_space(agent)`, `action_space(agent)`. `JaxMARLRoutingEnv` gives them over a
-`RoutingEnv` whose days the calibrated surrogate simulates (`urb_jax.experiment.outside`), so such
+`RoutingEnv` whose days the calibrated surrogate simulates (`urb_jax.interop.outside`), so such
 a baseline trains on a URB network unchanged, and `evaluate_on_sumo` (same module) judges it in SUMO.
 
 Semantics (docs/jaxmarl.md):
@@ -58,7 +58,7 @@ class JaxMARLRoutingEnv(MultiAgentEnv):
                  od_onehot: bool = False) -> None:
         if env.travel_time_fn is None:
             raise ValueError("JaxMARLRoutingEnv needs an env with a travel_time_fn (the surrogate): "
-                             "build it with urb_jax.experiment.outside.surrogate_env_from_run")
+                             "build it with urb_jax.interop.outside.surrogate_env_from_run")
         if env.n_cavs == 0:
             raise ValueError("the env has no CAV: a JaxMARL env needs at least one agent")
         super().__init__(env.n_cavs)

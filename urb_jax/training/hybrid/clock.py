@@ -20,7 +20,7 @@ import jax
 import numpy as np
 
 from urb_jax.algorithms.learner import Learner
-from urb_jax.experiment.hybrid.memory import tree_size
+from urb_jax.training.hybrid.memory import tree_size
 
 LINE_EVERY_S = 300.0
 SLOW_S = 3600.0  # a surrogate training estimated longer than this gets the --alg-conf hybrid hint

@@ -14,10 +14,10 @@ from typing import Any, NamedTuple, cast
 
 import pandas as pd
 
-from urb_jax.experiment.checkpoints import checkpoint_meta
-from urb_jax.experiment.human_phase import HUMAN_FILE
-from urb_jax.experiment.hybrid.clock import fmt_duration
-from urb_jax.experiment.run_folder import CONFIG_FILE, ROUNDS_FILE, run_status, seed_groups_of
+from urb_jax.runs.folder import CONFIG_FILE, ROUNDS_FILE, run_status, seed_groups_of
+from urb_jax.training.checkpoints import checkpoint_meta
+from urb_jax.training.human_phase import HUMAN_FILE
+from urb_jax.training.hybrid.clock import fmt_duration
 
 
 def seed_groups(results_dir: Path, seeds: dict[str, int]) -> list[str]:

@@ -36,8 +36,6 @@ import pandas as pd
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.atomic import write_json
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.experiment.human_phase import saved_calibration_days
-from urb_jax.experiment.protocol import PHASE_TEST
 from urb_jax.game.humans import aon_routes
 from urb_jax.game.rewards import behaviour_coefficients
 from urb_jax.reporting.day_export import recorded_day, run_config, scenario_of_run
@@ -46,6 +44,8 @@ from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, InProcessExecut
 from urb_jax.surrogate import SumoSample, build_static, predict
 from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias, uncalibrated
 from urb_jax.surrogate.model import Static, predict_jit
+from urb_jax.training.human_phase import saved_calibration_days
+from urb_jax.training.protocol import PHASE_TEST
 
 OBJECTIVES = ("cav", "all", "reward")
 

@@ -19,11 +19,11 @@ import jax
 import jax.numpy as jnp
 
 from urb_jax.algorithms.learner import Day, Learner, Metrics, collect
-from urb_jax.experiment.hybrid.memory import tree_size
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.rollout import act_by_levels, dependency_levels
 from urb_jax.surrogate import Static, predict
 from urb_jax.surrogate.calibrate import Params
+from urb_jax.training.hybrid.memory import tree_size
 
 Runner = Any  # the learner's runner state (an algorithm-specific pytree), [S] leading
 # (runner [S], keys [S, P, 2], real states [S, P])

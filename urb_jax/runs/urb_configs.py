@@ -17,9 +17,9 @@ from urb_jax.algorithms.registry import load_algo, load_urb_algo
 from urb_jax.core.choices import TRAIN_SECTIONS
 from urb_jax.core.configio import Loaded, Override, in_section, parse_overrides
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.hybrid.plan import load_hybrid
-from urb_jax.experiment.request import TrainRequest
 from urb_jax.game.config import load_env, load_task
+from urb_jax.runs.request import TrainRequest
+from urb_jax.training.hybrid.plan import load_hybrid
 
 CONFIG_ALIASES_KEY = "config_aliases"
 OVERRIDES_KEY = "overrides"

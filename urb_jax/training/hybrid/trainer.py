@@ -26,20 +26,6 @@ from urb_jax.city.scenario import Scenario
 from urb_jax.core.choices import MODES
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.progress import Progress
-from urb_jax.experiment.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
-from urb_jax.experiment.human_phase import HumanPhase, calibrate
-from urb_jax.experiment.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
-from urb_jax.experiment.hybrid.fns import Runner, TrainerFns, build_fns, maps_seeds
-from urb_jax.experiment.hybrid.memory import check_fits
-from urb_jax.experiment.hybrid.plan import (
-    AlgoConfig,
-    HybridConfig,
-    RoundPlan,
-    kept_rounds,
-    learner_for,
-    plan_rounds,
-)
-from urb_jax.experiment.protocol import PHASE_TEST, PHASE_TRAIN
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
@@ -50,6 +36,20 @@ from urb_jax.sumo_bridge.memo import MemoExecutor
 from urb_jax.surrogate import SumoSample, build_static, predict
 from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias, uncalibrated
 from urb_jax.surrogate.model import Static
+from urb_jax.training.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
+from urb_jax.training.human_phase import HumanPhase, calibrate
+from urb_jax.training.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
+from urb_jax.training.hybrid.fns import Runner, TrainerFns, build_fns, maps_seeds
+from urb_jax.training.hybrid.memory import check_fits
+from urb_jax.training.hybrid.plan import (
+    AlgoConfig,
+    HybridConfig,
+    RoundPlan,
+    kept_rounds,
+    learner_for,
+    plan_rounds,
+)
+from urb_jax.training.protocol import PHASE_TEST, PHASE_TRAIN
 
 Row = dict[str, float]  # one seed's rounds.csv row
 

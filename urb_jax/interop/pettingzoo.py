@@ -31,7 +31,6 @@ from pettingzoo.utils import AgentSelector
 
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.errors import ConfigError
-from urb_jax.experiment.protocol import DayFn, train_humans
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.humans import HumanState, act_jit, end_day_jit
 from urb_jax.game.mutation import draw_cavs
@@ -39,6 +38,7 @@ from urb_jax.game.observations import IncrementalObservations, make_observation_
 from urb_jax.game.rewards import cav_rewards
 from urb_jax.game.rollout import cav_levels
 from urb_jax.sumo_bridge import run_day
+from urb_jax.training.protocol import DayFn, train_humans
 
 
 @jax.jit

@@ -23,12 +23,11 @@ journal goes when every folder of the run is done (`drop_journal`).
 from __future__ import annotations
 
 import json
-import shutil
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -39,9 +38,6 @@ from urb_jax.city.scenario import Scenario
 from urb_jax.core.atomic import write_npz
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.progress import Progress
-from urb_jax.experiment.hybrid.plan import HybridConfig
-from urb_jax.experiment.protocol import DayFn, train_humans, train_humans_on_model
-from urb_jax.experiment.run_folder import run_status
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.humans import HumanState
 from urb_jax.reporting.metrics import PRE_WINDOW
@@ -51,8 +47,9 @@ from urb_jax.surrogate import build_static, init_params, predict
 from urb_jax.surrogate.calibrate import FitConfig, Params, SumoSample, fit_with_bias
 from urb_jax.surrogate.data import make_choices
 from urb_jax.surrogate.model import Static
+from urb_jax.training.hybrid.plan import HybridConfig
+from urb_jax.training.protocol import DayFn, train_humans, train_humans_on_model
 
-T = TypeVar("T")  # what a reuse check returns (first_reusable)
 HUMAN_FILE = "human_phase.npz"
 JOURNAL_DIR = "human_days.journal"  # in the run's first folder
 JOURNAL_KEY = "human_days_journal"  # exp_config.json: the folder that holds the journal
@@ -128,7 +125,7 @@ def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor
 def calibrate(start: Params, static: Static, human: HumanPhase, cfg: HybridConfig) -> Params:
     """The surrogate fitted to the human phase's calibration days (`calib_steps` steps from `start`,
     then the route bias on the same days): what the hybrid trainer's round 0 trains on, and what an
-    env for a policy trained outside urb-jax simulates (`urb_jax.experiment.outside`)."""
+    env for a policy trained outside urb-jax simulates (`urb_jax.interop.outside`)."""
     sample = SumoSample(human.calib_choices, human.calib_times, human.calib_arrived)
     return fit_with_bias(start, static, sample, FitConfig(steps=cfg.calib_steps), sample, cfg.bias_prior)
 
@@ -162,17 +159,6 @@ def journal(executor: DayExecutor, folder: Path) -> MemoExecutor:
     starting again reads back the days it already ran, and a day that repeats one already run
     (converged deterministic humans: saint_arnoult, 66 of 208 days) is that SUMO day, read back."""
     return MemoExecutor(executor, store_dir=folder / JOURNAL_DIR)
-
-
-def drop_journal(root: Path, config: dict[str, Any]) -> None:
-    """Remove the run's journal once every folder of the run (`run_folders`) is done."""
-    holder = config.get(JOURNAL_KEY)
-    if not holder or not (root / holder / JOURNAL_DIR).is_dir():
-        return
-    for name in config.get("run_folders", [holder]):
-        if run_status(root / name) != "done":
-            return
-    shutil.rmtree(root / holder / JOURNAL_DIR, ignore_errors=True)
 
 
 def save_human_phase(folder: Path, human: HumanPhase) -> None:
@@ -277,22 +263,6 @@ def load_replay(source: Path, config: dict[str, Any], agent_id: np.ndarray, days
     human phase (`urb-jax baseline --human-phase-from`)."""
     check_replayable(source, config, days)
     return _replay(source, agent_id, days, day_fn)
-
-
-def first_reusable(results_dir: Path, candidates: Sequence[str], reuse: Callable[[Path], T]
-                   ) -> tuple[str, T] | None:
-    """(id, what `reuse` returned) of the first finished run among `candidates` (experiment ids in
-    `results_dir`) whose human phase `reuse` accepts; `reuse` raises UrbJaxError to refuse one.
-    What a suite uses to simulate each human phase once: runs that differ only in their CAVs
-    (algorithm, CAV behaviour, seeds) share it, and `reuse` checks everything else."""
-    for exp_id in candidates:
-        if run_status(results_dir / exp_id) != "done":
-            continue
-        try:
-            return exp_id, reuse(results_dir / exp_id)
-        except UrbJaxError:
-            continue
-    return None
 
 
 def check_replayable(source: Path, config: dict[str, Any], days: int) -> None:

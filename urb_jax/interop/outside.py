@@ -8,7 +8,7 @@ calibrated as the trainer calibrates it) without a SUMO day; `evaluate_on_sumo` 
 policy on URB's test days in SUMO after the same human phase (replayed, not re-simulated) and
 writes the usual results folder and metric files (t_CAV, t_pre, ...).
 
-The JaxMARL interface over the env lives in `urb_jax.experiment.jaxmarl_env` (optional extra).
+The JaxMARL interface over the env lives in `urb_jax.interop.jaxmarl` (optional extra).
 """
 
 from __future__ import annotations
@@ -19,16 +19,17 @@ from typing import Any, NamedTuple
 
 from urb_jax.algorithms.baselines import FixedPolicy
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.experiment.human_phase import HumanPhase, calibrate, reuse_human_phase
-from urb_jax.experiment.hybrid.trainer import routing_env_kwargs, surrogate_env
-from urb_jax.experiment.request import BaselineRequest, TrainRequest
-from urb_jax.experiment.run import RunResult, TrainSetup, load_setup, run_policy
-from urb_jax.experiment.run_folder import CONFIG_FILE
 from urb_jax.game.env import RoutingEnv
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.game.rollout import Policy
+from urb_jax.runs.baseline import run_policy
+from urb_jax.runs.folder import CONFIG_FILE
+from urb_jax.runs.request import BaselineRequest, TrainRequest
+from urb_jax.runs.setup import RunResult, TrainSetup, load_setup
 from urb_jax.surrogate import build_static
 from urb_jax.surrogate.calibrate import uncalibrated
+from urb_jax.training.human_phase import HumanPhase, calibrate, reuse_human_phase
+from urb_jax.training.hybrid.trainer import routing_env_kwargs, surrogate_env
 
 
 class RunEnv(NamedTuple):

@@ -17,12 +17,12 @@ from typing import Any
 from urb_jax.algorithms.registry import algorithm
 from urb_jax.core.configio import Loaded, in_section
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.experiment.request import TrainRequest
-from urb_jax.experiment.round_log import check_logger
-from urb_jax.experiment.run import TrainSetup, check_runnable, load_setup
-from urb_jax.experiment.run_folder import CONFIG_FILE, ResultsExistError, check_exp_id, train_run_names
-from urb_jax.experiment.urb_configs import run_overrides, train_configs
 from urb_jax.reporting.urb_names import train_names
+from urb_jax.runs.folder import CONFIG_FILE, ResultsExistError, check_exp_id, train_run_names
+from urb_jax.runs.request import TrainRequest
+from urb_jax.runs.round_log import check_logger
+from urb_jax.runs.setup import TrainSetup, check_runnable, load_setup
+from urb_jax.runs.urb_configs import run_overrides, train_configs
 
 
 @dataclass(frozen=True)

@@ -1,1 +1,0 @@
-"""Experiments: URB's protocol, the human phase, the hybrid trainer, checkpoints."""

@@ -1,0 +1,185 @@
+"""What every run does before and around its days: load a train run's scenario and configs
+(`load_setup`), refuse a task whose URB metrics could not exist (`check_runnable`), the exp_config.json
+keys every run shares (`experiment_config`), and a clean stop on Ctrl-C or a full disk with the line
+that continues the run (`stops_cleanly`)."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple, TypeVar
+
+from urb_jax.algorithms.registry import load_algo_config
+from urb_jax.city.demand import scale_demand
+from urb_jax.city.scenario import Scenario, load_scenario
+from urb_jax.core.choices import DEFAULT_NETWORK
+from urb_jax.core.configio import in_section, to_dict
+from urb_jax.core.errors import ConfigError, UrbJaxError
+from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop
+from urb_jax.core.version import __version__
+from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
+from urb_jax.runs.folder import (
+    machine,
+    run_status,
+    versions,
+)
+from urb_jax.runs.request import TrainRequest
+from urb_jax.runs.urb_configs import (
+    run_overrides,
+)
+from urb_jax.training.checkpoints import latest_checkpoint
+from urb_jax.training.hybrid.plan import AlgoConfig, HybridConfig, load_hybrid_config
+from urb_jax.training.hybrid.trainer import TrainSummary
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What a run returns to its command."""
+
+    folder: Path
+    metrics: dict[str, float]  # empty for a stopped run
+    wall_time_s: float
+    summary: TrainSummary | None = None  # train runs
+    stopped: int | None = None  # train runs stopped by `stop_after_round` (tests): rounds done
+    days: int = 0  # baseline runs: every day of the run
+    replayed_days: int = 0  # baseline runs: human days replayed from --human-phase-from
+
+
+class TrainSetup(NamedTuple):
+    """Scenario and configs of a train run, loaded from its arguments."""
+
+    scn: Scenario
+    task: TaskConfig
+    task_path: Path
+    env: EnvConfig
+    env_path: Path
+    hyb: HybridConfig
+    hyb_path: Path
+    alg_config: AlgoConfig
+
+
+def load_setup(req: TrainRequest) -> TrainSetup:
+    """The run's scenario and configs, each config with its `--set` overrides."""
+    ov = run_overrides(req.overrides)
+    task, task_path = load_task_config(req.task_conf, in_section(ov, "task"))
+    env, env_path = load_env_config(req.env_conf, in_section(ov, "env"))
+    hyb, hyb_path = load_hybrid_config(req.hybrid_conf, in_section(ov, "hybrid"))
+    if req.train_days is not None:  # the request refuses fewer than one day
+        if any(o.key == "train_days" for o in in_section(ov, "hybrid")):
+            raise ConfigError(f"--train-days {req.train_days} and --set hybrid.train_days both set the "
+                              "training budget. Fix: give one of them.")
+        hyb = dataclasses.replace(hyb, train_days=req.train_days)
+    alg_config = load_algo_config(req.alg, req.alg_conf, in_section(ov, "alg"))
+    scn = scenario_of(req.net, req.networks_dir, req.env_seed, env, task, req.drop_unroutable)
+    return TrainSetup(scn, task, task_path, env, env_path, hyb, hyb_path, alg_config)
+
+
+def scenario_of(net: str | None, networks_dir: str | None, env_seed: int, env: EnvConfig,
+              task: TaskConfig, drop_unroutable: bool) -> Scenario:
+    """The network's scenario with the task's demand (`drop_unroutable`: see load_scenario)."""
+    scn = load_scenario(net or DEFAULT_NETWORK, networks_dir=networks_dir, env_seed=env_seed,
+                        route_params=env.route_params(), drop_unroutable=drop_unroutable)
+    return scale_demand(scn, task.demand_scale, seed=env_seed, mode=task.demand_mode,
+                        jitter_s=task.demand_jitter_s)
+
+
+def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: bool, mode: str = "hybrid"
+                   ) -> None:
+    """Refuse, before any SUMO day, a task whose URB metrics could not exist: no human day (t_pre),
+    no test day (t_CAV, t_test, WR), or, for training, no CAV to train; and a marginal credit
+    without a calibrated surrogate to take its derivative (baselines, `--mode sumo`)."""
+    where = f"task config {task_path}"
+    needs = task.surrogate_reward_keys
+    if needs and (not train or mode == "sumo"):
+        given = " and ".join(f"'{k}' = {getattr(task, k)!r}" for k in needs)
+        raise ConfigError(f"{where}: key(s) {given} pay each CAV from the calibrated surrogate's "
+                          "derivative (the marginal credit; URB's marginal_cost_coefficient_beta), and this "
+                          f"run has no surrogate ({'a baseline' if not train else '--mode sumo'}). Fix: "
+                          "train with --mode hybrid or surrogate, or set reward_credit 'group' and "
+                          "marginal_cost_beta 0 (URB's rewards).")
+    if task.human_learning_episodes < 1:
+        raise ConfigError(f"{where}: key 'human_learning_episodes' is 0, but t_pre is measured on the "
+                          "last human days. Fix: set it to 1 or more (200 in URB's configs).")
+    if task.test_eps < 1:
+        raise ConfigError(f"{where}: key 'test_eps' is 0, but t_CAV, t_test and the win rate are measured "
+                          "on test days. Fix: set it to 1 or more (100 in URB's configs).")
+    if train and int(n_agents * task.ratio_machines) == 0:
+        raise ConfigError(
+            f"{where}: key 'ratio_machines' {task.ratio_machines} makes 0 of the {n_agents} agents CAVs, "
+            "so there is nothing to train. Fix: set ratio_machines so that at least one agent is a CAV "
+            f"(0.4 in URB's config1), or run the humans-only experiment with `urb-jax baseline "
+            f"--task-conf {task_path}` (every day in SUMO).")
+
+
+@contextlib.contextmanager
+def stops_cleanly(folders: list[Path], resumable: bool = True) -> Iterator[None]:
+    """Ctrl-C and a full disk end a train run with the message that says what is kept and how to
+    go on (`urb-jax train --resume`), instead of a traceback; the executor is closed by then. A
+    forced stop (Ctrl-C inside a long jitted call, or pressed twice) prints the same line."""
+    on_stop(lambda: _resume_hint(folders, resumable))
+    try:
+        yield
+    except KeyboardInterrupt:
+        raise InterruptedRunError(f"stopped by Ctrl-C. {_resume_hint(folders, resumable)}") from None
+    except Exception as exc:  # orbax and pyarrow wrap the OS error in their own types
+        if not no_space(exc):
+            raise
+        raise disk_full(folders[0].parent, f"({exc}) {_resume_hint(folders, resumable)}") from None
+    finally:
+        on_stop(None)
+
+
+def _resume_hint(folders: list[Path], resumable: bool) -> str:
+    """What a stopped run keeps and the command that continues it."""
+    if not resumable:
+        return (f"{folders[0]} is unfinished (a baseline run does not resume). Run the same command "
+                "with --overwrite to start it again.")
+    kept = latest_checkpoint(folders[0])
+    done = (f"Its last complete checkpoint (round {kept[0]}) is kept" if kept else
+            "It had no checkpoint yet; the SUMO days of its human phase are kept")
+    return (f"{done}. Continue with: urb-jax train --resume {folders[0].name} "
+            f"--results-dir {folders[0].parent}")
+
+
+def experiment_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvConfig, env_path: Path,
+                       env_seed: int, human_phase_from: str | None, drop_unroutable: bool) -> dict[str, Any]:
+    """exp_config.json's keys of every run, train or baseline: the configs' values, the network and
+    its agents, where and with what the run computed."""
+    return {
+        **to_dict(env), **to_dict(task),
+        "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed,
+        "env_config": env_path.stem, "task_config": task_path.stem,
+        "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
+        "exp_type": "normal", "human_days": task.human_learning_episodes,
+        "versions": versions(), "machine": machine(), "urb_jax_version": __version__, "command": sys.argv,
+        "status": "running", "human_phase_from": human_phase_from, **_dropped(scn, drop_unroutable),
+    }
+
+
+def _dropped(scn: Scenario, drop_unroutable: bool) -> dict[str, Any]:
+    """exp_config.json keys of the --drop-unroutable opt-in: the choice and the agents it left out
+    (`export-day` rebuilds the scenario from the choice)."""
+    return {"drop_unroutable": drop_unroutable, "dropped_unroutable_agents": scn.dropped_record()}
+
+
+T = TypeVar("T")  # what a reuse check returns
+
+
+def first_reusable(results_dir: Path, candidates: Sequence[str], reuse: Callable[[Path], T]
+                   ) -> tuple[str, T] | None:
+    """(id, what `reuse` returned) of the first finished run among `candidates` (experiment ids in
+    `results_dir`) whose human phase `reuse` accepts; `reuse` raises UrbJaxError to refuse one.
+    What a suite uses to simulate each human phase once: runs that differ only in their CAVs
+    (algorithm, CAV behaviour, seeds) share it, and `reuse` checks everything else."""
+    for exp_id in candidates:
+        if run_status(results_dir / exp_id) != "done":
+            continue
+        try:
+            return exp_id, reuse(results_dir / exp_id)
+        except UrbJaxError:
+            continue
+    return None
