@@ -81,6 +81,7 @@ def env(grid_scenario):
     return make_env(grid_scenario, cav_share=0.1)  # 40 CAVs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("num_minibatches", "n_envs"), [(0, 4), (3, 1), (3, 4)])
 def test_adam_steps_per_update(env, num_minibatches, n_envs):
     """Counted in Adam's state: URB's count grows with B, the PureJaxRL count does not."""

@@ -91,6 +91,7 @@ def test_a_fast_training_gets_no_hint():
     assert fmt_duration(42) == "42 s" and fmt_duration(600) == "10.0 min" and fmt_duration(9000) == "2.5 h"
 
 
+@pytest.mark.slow
 def test_a_training_run_prints_its_estimate(tmp_path, capsys):
     from urb_jax.runs.train import run_train
 

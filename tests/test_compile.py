@@ -194,6 +194,7 @@ def test_compile_cache_opt_out_stores_nothing(fresh_compile_cache, monkeypatch):
     assert not fresh_compile_cache.exists() or not any(fresh_compile_cache.iterdir())
 
 
+@pytest.mark.slow
 def test_warm_compile_cache_gives_identical_records(tmp_path):
     """Two processes, one compile cache: the second compiles nothing (every program it asks for is
     a cache hit: none carries a host callback, which JAX would compile afresh every process) and

@@ -83,6 +83,7 @@ def confs(tmp_path_factory):
                            reward_credit="marginal")
 
 
+@pytest.mark.slow
 def test_hybrid_run_pays_cavs_their_credit(confs, tmp_path):
     (out,) = run_train(TrainRequest(alg="iql_star", exp_id="credit", results_dir=str(tmp_path),
                                     progress=False, **confs), executor=FakeExecutor())

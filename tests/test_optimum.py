@@ -100,6 +100,7 @@ def test_best_response_ends_in_a_surrogate_equilibrium(problem):
     assert (base[moves[:, 0]] - own <= 1e-4).all()  # no CAV gains by moving alone
 
 
+@pytest.mark.slow
 def test_references_of_a_run_are_sumo_days(tmp_path):
     d = tmp_path / "confs"
     d.mkdir()

@@ -26,6 +26,7 @@ class Killed(BaseException):
     """A kill -9 stand-in: nothing after the raising step runs (not an Exception, no cleanup)."""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("instant", ["after_merge", "after_metrics", "after_done"])
 def test_kill_at_every_instant_of_the_finish_resumes_identically(confs, tmp_path, monkeypatch, instant,
                                                                  tiny_iql_reference):
