@@ -17,10 +17,10 @@ from urb_jax.runs.request import BaselineRequest, ResumeRequest
 from urb_jax.runs.suite import SuiteRun, run_progress, run_suite, status, write_report
 
 
-def _runs(conf: Path, executor: FakeExecutor, day: FakeDay, **train_extra) -> list[SuiteRun]:
+def _runs(conf: Path, executor: FakeExecutor, day: FakeDay, **train_options) -> list[SuiteRun]:
     return [SuiteRun("train", "iqls", {"alg": "iql_star", "task_conf": "test", "hybrid_conf": str(conf),
-                                       "seeds": [0, 1], "executor": executor, **train_extra}),
-            SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test", "day_fn": day})]
+                                       "seeds": [0, 1]}, {"executor": executor, **train_options}),
+            SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test"}, {"day_fn": day})]
 
 
 @pytest.mark.slow
@@ -80,7 +80,7 @@ def test_a_run_another_process_is_writing_is_running_not_stopped(tmp_path):
     results = tmp_path / "results"
     (results / "aon").mkdir(parents=True)
     (results / "aon" / "exp_config.json").write_text(json.dumps({"status": "created"}))
-    run = SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test", "day_fn": FakeDay()})
+    run = SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test"}, {"day_fn": FakeDay()})
     assert status(results, run) == "stopped"
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys, pathlib; from urb_jax.runs.folder import lock_run; "
@@ -108,9 +108,9 @@ def test_a_suite_simulates_each_human_phase_once(tmp_path):
                                 "refit_steps": 5}))
     args = {"task_conf": "test", "hybrid_conf": str(conf)}
     ex = [FakeExecutor() for _ in range(3)]
-    runs = [SuiteRun("train", "first", {"alg": "iql_star", "executor": ex[0], **args}),
-            SuiteRun("train", "second", {"alg": "iql", "executor": ex[1], **args}),
-            SuiteRun("train", "other_seed", {"alg": "iql", "executor": ex[2], "env_seed": 7, **args})]
+    runs = [SuiteRun("train", "first", {"alg": "iql_star", **args}, {"executor": ex[0]}),
+            SuiteRun("train", "second", {"alg": "iql", **args}, {"executor": ex[1]}),
+            SuiteRun("train", "other_seed", {"alg": "iql", "env_seed": 7, **args}, {"executor": ex[2]})]
     run_suite(runs, tmp_path / "r", progress=False, log=lambda _: None)
     cfg = {f.parent.name: json.loads(f.read_text()) for f in (tmp_path / "r").glob("*/exp_config.json")}
     assert cfg["second"]["human_phase_from"] == "first"
@@ -120,7 +120,7 @@ def test_a_suite_simulates_each_human_phase_once(tmp_path):
     # (a replayed human phase gives the records a simulated one would: test_hybrid_seeds.py)
     # another suite in the same folder (a second catalogue entry on the same network) replays it too
     ex4 = FakeExecutor()
-    run_suite([SuiteRun("train", "later", {"alg": "iql_star", "executor": ex4, **args})],
+    run_suite([SuiteRun("train", "later", {"alg": "iql_star", **args}, {"executor": ex4})],
               tmp_path / "r", progress=False, log=lambda _: None)
     later = json.loads((tmp_path / "r" / "later" / "exp_config.json").read_text())
     assert later["human_phase_from"] == "first" and all(cav is not None for _, cav in ex4.batches)
@@ -138,7 +138,7 @@ def test_a_suite_runs_only_the_seeds_the_ledger_lacks_to_the_same_bytes(tmp_path
                                 "refit_steps": 5, "max_vmapped_seeds": 1}))
     def run(seeds: list[int]) -> SuiteRun:
         return SuiteRun("train", "iqls", {"alg": "iql_star", "task_conf": "test", "hybrid_conf": str(conf),
-                                          "seeds": seeds, "executor": FakeExecutor()})
+                                          "seeds": seeds}, {"executor": FakeExecutor()})
 
     ref = run_suite([run([1, 2])], tmp_path / "ref", progress=False, log=lambda _: None)
     results, lines = tmp_path / "results", []
@@ -267,8 +267,8 @@ def test_resume_finishes_every_seed_group_of_the_run(tmp_path):
         run_suite(_runs(conf, FakeExecutor(), FakeDay(), stop_after_round=1)[:1], results, progress=False,
                   log=lambda _: None)
         # seed 0's group finished alone (the old resume): the run is still unfinished
-        _resume_group(["iqls_s0"], results_dir=str(results), progress=False, executor=FakeExecutor(),
-                      executor_kind=None, ray_address=None, overrides=None, log=None, networks_dir=None)
+        _resume_group(["iqls_s0"], ResumeRequest("iqls_s0", results_dir=str(results), progress=False),
+                      FakeExecutor())
         assert [json.loads((results / f"iqls_s{s}" / "exp_config.json").read_text())["status"]
                 for s in (0, 1)] == ["done", "running"]
     run_suite(_runs(conf, FakeExecutor(), FakeDay())[:1], tmp_path / "suite", progress=False,

@@ -47,11 +47,14 @@ KINDS = ("train", "baseline")
 @dataclass(frozen=True)
 class SuiteRun:
     """One experiment of a suite: a `TrainRequest(**kwargs)` (kind train, with `seeds`) or a
-    `BaselineRequest(**kwargs)` (kind baseline), under `exp_id`."""
+    `BaselineRequest(**kwargs)` (kind baseline), under `exp_id`. `options`: what a Python caller
+    (tests) hands the run besides its request: run_train's executor and stop_after_round,
+    run_baseline's day_fn and task_overrides; a suite file has none."""
 
     kind: str
     exp_id: str
     kwargs: dict[str, Any] = field(default_factory=dict)
+    options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -105,7 +108,8 @@ def remaining(run: SuiteRun, left: list[str]) -> SuiteRun:
     if left == run.folder_names() or run.kind != "train":
         return run
     seeds = [s for s, n in zip(run.kwargs.get("seeds") or [0], run.folder_names(), strict=True) if n in left]
-    part = SuiteRun(run.kind, left[0] if len(left) == 1 else run.exp_id, {**run.kwargs, "seeds": seeds})
+    part = SuiteRun(run.kind, left[0] if len(left) == 1 else run.exp_id, {**run.kwargs, "seeds": seeds},
+                    run.options)
     assert part.folder_names() == left, (part.folder_names(), left)
     return part
 
@@ -169,16 +173,18 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
         if state == "stopped" and run.kind == "train":
             first = next(n for n in left if run_status(results_dir / n) is not None)
             resume_train(ResumeRequest(first, results_dir=str(results_dir), progress=progress,
-                                       networks_dir=run.kwargs.get("networks_dir")))
+                                       networks_dir=run.kwargs.get("networks_dir")),
+                         executor=run.options.get("executor"))
         elif state != "done":  # a stopped baseline has no checkpoint: it starts again in its own folder
             part, again = remaining(run, left), state == "stopped"
             if run.kind == "train":
                 run_train(TrainRequest(**part.kwargs, exp_id=part.exp_id, results_dir=str(results_dir),
-                                       progress=progress, overwrite=again), human_phase_candidates=candidates)
+                                       progress=progress, overwrite=again), human_phase_candidates=candidates,
+                          **part.options)
             else:
                 run_baseline(BaselineRequest(**part.kwargs, exp_id=part.exp_id, results_dir=str(results_dir),
                                              progress=progress, overwrite=again),
-                             human_phase_candidates=candidates)
+                             human_phase_candidates=candidates, **part.options)
         folders += finished_here(results_dir, run.folder_names())
     return folders
 
@@ -357,5 +363,6 @@ def select(spec: SuiteSpec, only: str | None, networks_dir: str | None) -> Suite
                               f"{[r.exp_id for r in runs]}.")
         runs = [r for r in runs if r.exp_id in wanted]
     if networks_dir:
-        runs = [SuiteRun(r.kind, r.exp_id, {"networks_dir": networks_dir, **r.kwargs}) for r in runs]
+        runs = [SuiteRun(r.kind, r.exp_id, {"networks_dir": networks_dir, **r.kwargs}, r.options)
+                for r in runs]
     return SuiteSpec(spec.title, spec.preamble, runs)
