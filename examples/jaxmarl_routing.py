@@ -30,8 +30,7 @@ def grid_env() -> Any:
     from urb_jax.game.config import EnvConfig, TaskConfig
     from urb_jax.game.humans import init_humans
     from urb_jax.game.mutation import draw_cavs
-    from urb_jax.surrogate import build_static
-    from urb_jax.training.human_phase import uncalibrated
+    from urb_jax.surrogate import build_static, uncalibrated
     from urb_jax.training.hybrid.trainer import routing_env_kwargs, surrogate_env
 
     scn, task = load_scenario("urb_grid"), TaskConfig()

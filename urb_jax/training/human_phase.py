@@ -17,7 +17,7 @@ simulation); later calls go to the wrapped day function.
 A run's own human phase is journaled (`journal`: the one day cache, on disk in the run's first
 folder), so a run stopped before its first checkpoint resumes by simulating the phase
 again with every day already done read back (SUMO days are deterministic: the same records). The
-journal goes when every folder of the run is done (`drop_journal`).
+journal goes when every folder of the run is done (`urb_jax.runs.train.drop_journal`).
 """
 
 from __future__ import annotations
