@@ -10,10 +10,10 @@ speed is exactly 0 for more than 600 consecutive steps is removed and charged
 from __future__ import annotations
 
 import os
-from collections import Counter
 
 import numpy as np
 import pytest
+from support.blocker import make_blocker
 
 from urb_jax.sumo_bridge import REMOVED_STUCK, SumoConfig, run_day
 from urb_jax.sumo_bridge.tripinfo import write_routes_file
@@ -91,15 +91,7 @@ def test_travel_times_equal_routerl_loop(grid_scenario, tmp_path):
 def test_stuck_removals_equal_routerl_loop(grid_scenario, tmp_path):
     scn = grid_scenario
     choices = scn.fft.argmin(1)
-    busy = Counter(e for i in range(scn.n_agents)
-                   for e in scn.route_edge_ids(int(scn.agent_od[i]), int(choices[i]))[1:-1])
-    edge = busy.most_common(1)[0][0]
-    blocker = tmp_path / "blocker.add.xml"
-    blocker.write_text(
-        f'<additional><route id="blocker_route" edges="{edge}"/>'
-        f'<vehicle id="blocker" route="blocker_route" depart="0" departPos="stop">'
-        f'<stop lane="{edge}_0" endPos="150" duration="1500" parking="false"/></vehicle></additional>'
-    )
+    blocker, _ = make_blocker(scn, choices, tmp_path)
     ref = routerl_day(scn, choices, np.zeros(scn.n_agents, bool), 42, tmp_path, [blocker])
     exact = run_day(scn, choices, seed=42, config=SumoConfig(
         additional_files=(str(blocker),), stuck_rule="routerl", stuck_penalty="urb"))

@@ -8,7 +8,7 @@ import argparse
 
 from urb_jax.commands.common import add_network_flags, add_set_flag
 from urb_jax.core.choices import ALGORITHM_URB_NAMES, EXECUTORS, LOGGERS, MODES, TRAIN_SECTIONS, URB_ALIASES
-from urb_jax.runs.request import ResumeRequest, TrainRequest
+from urb_jax.runs.request import ResumeRequest, TrainRequest, repeated_seed
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing
 if TYPE_CHECKING:
@@ -128,9 +128,9 @@ def seed_list(text: str) -> list[int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: seeds are comma-separated integers, e.g. 0,1,2"
                                          ) from None
-    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
-    if repeated:
-        raise argparse.ArgumentTypeError(f"{text!r}: seed {repeated[0]} is given twice (each seed is one "
+    repeated = repeated_seed(seeds)
+    if repeated is not None:
+        raise argparse.ArgumentTypeError(f"{text!r}: seed {repeated} is given twice (each seed is one "
                                          "results folder); e.g. 0,1,2")
     return seeds
 

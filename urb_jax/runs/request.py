@@ -20,13 +20,18 @@ from urb_jax.core.errors import ConfigError
 from urb_jax.core.paths import absolute_dir
 
 
+def repeated_seed(seeds: Sequence[int]) -> int | None:
+    """The smallest seed listed more than once, if any (each seed is one results folder)."""
+    return min((s for s in set(seeds) if list(seeds).count(s) > 1), default=None)
+
+
 def _seeds(seeds: Sequence[int]) -> tuple[int, ...]:
     """Distinct integer seeds, at least one (each seed is one results folder)."""
     out = tuple(seeds)
     if not out or not all(isinstance(s, int) and not isinstance(s, bool) for s in out):
         raise ConfigError(f"seeds {list(out)}: a run needs one or more integer seeds. "
                           "Fix: e.g. --seeds 0,1,2.")
-    if len(set(out)) != len(out):
+    if repeated_seed(out) is not None:
         raise ConfigError(f"seeds {list(out)}: a seed is given twice (each seed is one results folder). "
                           "Fix: list each seed once.")
     return out

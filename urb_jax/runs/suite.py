@@ -163,9 +163,8 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
         # simulating it again, this suite's runs first, then the runs finished in the folder before
         # the suite started; the records are the same bytes.
         earlier = [f.name for f in folders]
-        candidates = earlier + [name for name in before if name not in earlier]
-        if "human_phase_from" in run.kwargs:
-            candidates = []
+        candidates = [] if "human_phase_from" in run.kwargs else \
+            earlier + [name for name in before if name not in earlier]
         left = folders_left(results_dir, run, recorded)
         if 0 < len(left) < len(run.folder_names()):
             finished = [n for n in run.folder_names() if n not in left]
