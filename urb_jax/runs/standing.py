@@ -68,8 +68,9 @@ def _pace(results_dir: Path, label: str, group: list[str]) -> _Pace | None:
 
 
 def _per_round(rows: list[dict[str, Any]]) -> float:
-    """Mean seconds a round (its surrogate leg and SUMO days) over rounds.csv rows."""
-    return sum(row["surrogate_s"] + row["sumo_s"] for row in rows) / len(rows)
+    """Mean seconds a round (its surrogate leg and SUMO days) over rounds.csv rows; a SUMO-only
+    run's rows have no surrogate leg."""
+    return sum(row.get("surrogate_s", 0.0) + row["sumo_s"] for row in rows) / len(rows)
 
 
 def _group_progress(results_dir: Path, group: list[str], pace: _Pace | None) -> tuple[str, float | None]:
