@@ -46,7 +46,7 @@ NETWORKS_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "networks
 
 def human_phase(scn, travel_time_fn, days: int, key: jax.Array):
     """Humans alone for `days` days; returns their learned state and mean time on the last day."""
-    env = RoutingEnv(scn, np.zeros(scn.n_agents, bool), travel_time_fn)
+    env = RoutingEnv(scn, np.zeros(scn.n_agents, bool), travel_time_fn, humans_adapt=True)  # they learn
     _, state = env.reset(key)
     no_cav = jnp.zeros((0,), jnp.int32)
 

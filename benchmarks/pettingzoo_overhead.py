@@ -4,7 +4,7 @@ env, e.g. main's) vs AEC and Parallel now.
 A day = reset, every CAV acting (the free-flow fastest route, looked up: no policy cost) through
 the env's own loop (AEC: `agent_iter`/`last`/`step`; Parallel: one `step` per dependency level),
 the day's end. Overhead = the day's wall time minus its SUMO day (`run_day`, timed inside the
-env's `day_fn`: the bare SUMO day on the same choices). Humans start from their free-flow
+env's day executor: the bare SUMO day on the same choices). Humans start from their free-flow
 knowledge (no human phase: it does not change the env's cost), CAVs are URB's draw under the task.
 
 Each variant runs in its own process (two checkouts cannot share one), one warm-up day, then
@@ -19,6 +19,7 @@ average (`uptime`) before and after.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import statistics
@@ -47,16 +48,28 @@ def worker(network: str, networks_dir: str | None, task_name: str, variant: str,
     task, _ = load_task_config(task_name)
     sumo_s: list[float] = []
 
-    def timed_day(scenario, choices, *, seed, is_cav=None):
-        t0 = time.perf_counter()
-        res = run_day(scenario, choices, seed=seed, is_cav=is_cav)
-        sumo_s.append(time.perf_counter() - t0)
-        return res
+    class TimedDays:
+        """The env's days (an executor; called, a day function, as older envs take them), timed."""
+
+        def __call__(self, scenario, choices, *, seed, is_cav=None):
+            t0 = time.perf_counter()
+            res = run_day(scenario, choices, seed=seed, is_cav=is_cav)
+            sumo_s.append(time.perf_counter() - t0)
+            return res
+
+        def run_days(self, scenario, choices, seeds, is_cav=None):
+            masks = [None] * len(choices) if is_cav is None else list(np.broadcast_to(is_cav, choices.shape))
+            return [self(scenario, c, seed=int(s), is_cav=m)
+                    for c, s, m in zip(choices, seeds, masks, strict=True)]
+
+        def close(self):
+            pass
 
     humans = init_humans_jit(jax.random.fold_in(jax.random.PRNGKey(42), 1), jnp.asarray(scn.fft, jnp.float32),
                              jnp.asarray(scn.route_valid), task.human_params())
     cls = pettingzoo_env.UrbParallelEnv if variant == "parallel" else pettingzoo_env.UrbAECEnv
-    env = cls(scn, task, env_seed=42, day_fn=timed_day, humans=humans)
+    takes = "executor" if "executor" in inspect.signature(cls.__init__).parameters else "day_fn"
+    env = cls(scn, task, env_seed=42, humans=humans, **{takes: TimedDays()})
     pick = {a: int(np.argmin(scn.fft[i])) for a, i in zip(env.possible_agents, env.cav_index, strict=True)}
 
     def aec_day() -> None:

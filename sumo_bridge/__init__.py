@@ -13,10 +13,10 @@ from urb_jax.sumo_bridge.pool import SumoPool
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 from urb_jax.sumo_bridge.scheduler import SumoDayError
 from urb_jax.sumo_bridge.sim import InProcessExecutor, Simulator, run_day, run_days
-from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayExecutor, DayResult
+from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayExecutor, DayResult, one_day
 
 __all__ = [
     "ARRIVED", "REMOVED_CAP", "REMOVED_STUCK", "DayExecutor", "DayResult", "InProcessExecutor",
     "MemoExecutor", "RayExecutor", "Simulator", "SumoConfig", "SumoDayError", "SumoPool", "day_key",
-    "run_day", "run_days", "scenario_key",
+    "one_day", "run_day", "run_days", "scenario_key",
 ]

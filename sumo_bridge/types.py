@@ -66,3 +66,11 @@ class DayExecutor(Protocol):
                  is_cav: np.ndarray | None = None) -> list[DayResult]: ...
 
     def close(self) -> None: ...
+
+
+def one_day(executor: DayExecutor, scenario: Scenario, choices: np.ndarray, seed: int,
+            is_cav: np.ndarray | None = None) -> DayResult:
+    """One day on `executor`: a batch of one (the protocol's days, which depend on yesterday's)."""
+    mask = None if is_cav is None else np.asarray(is_cav)[None]
+    return executor.run_days(scenario, np.asarray(choices)[None], [int(seed)], mask)[0]
+

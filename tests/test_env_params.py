@@ -1,11 +1,14 @@
 """Travel-time parameters are explicit step arguments (gymnax style), so a refit needs no
 recompilation; measured times (SUMO) go through the same day transition."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.game.env import RoutingEnv
+from urb_jax.game.env import DayKeys, RoutingEnv
+from urb_jax.game.humans import HumanParams
 from urb_jax.game.mutation import draw_cavs
 
 
@@ -46,3 +49,36 @@ def test_step_with_times_is_the_same_transition(grid_scenario):
     sumo_only = RoutingEnv(grid_scenario, env.is_cav)  # no travel_time_fn: its days come from outside
     replay = sumo_only.step_with_times(key, state, actions, simulated[4]["times"])
     np.testing.assert_array_equal(replay[1].human_actions, simulated[1].human_actions)
+
+
+def test_explicit_day_keys_are_the_split_key_and_drive_the_humans(grid_scenario):
+    """A caller with its own key schedule passes DayKeys: the split key gives the same day; other
+    keys change only what the keys drive (tomorrow's stochastic human draws), not the rewards."""
+    env = dataclasses.replace(scaled_env(grid_scenario, []), human_params=HumanParams(deterministic=False))
+    _, state = env.reset(jax.random.PRNGKey(0))
+    actions = jnp.ones((env.n_cavs,), jnp.int32)
+    times = env.travel_times(None, env.joint_actions(state, actions))
+    key = jax.random.PRNGKey(3)
+    by_key = env.step_with_times(key, state, actions, times)
+    by_keys = env.step_with_times(DayKeys(*jax.random.split(key)), state, actions, times)
+    for a, b in zip(jax.tree_util.tree_leaves(by_key), jax.tree_util.tree_leaves(by_keys), strict=True):
+        np.testing.assert_array_equal(a, b)
+    other = env.step_with_times(DayKeys(*jax.random.split(jax.random.PRNGKey(4))), state, actions, times)
+    np.testing.assert_array_equal(other[2], by_key[2])
+    assert not np.array_equal(other[1].human_actions, by_key[1].human_actions)
+
+
+def test_humans_learn_after_a_day_only_when_the_task_lets_them_adapt(grid_scenario):
+    """One rule for every caller (the SUMO protocol, PettingZoo, the trainer): without adaptation
+    the humans' expected times stay, even on a day without CAVs; with it they move."""
+    no_cav = np.zeros(grid_scenario.n_agents, bool)
+    fft = jnp.asarray(grid_scenario.fft_full)
+
+    def tt(choices):
+        return fft[jnp.arange(grid_scenario.n_agents), choices] * 3.0  # far from the free-flow guess
+
+    for adapt in (False, True):
+        env = RoutingEnv(grid_scenario, no_cav, tt, humans_adapt=adapt)
+        _, state = env.reset(jax.random.PRNGKey(0))
+        _, after, *_ = env.step(jax.random.PRNGKey(1), state, jnp.zeros((0,), jnp.int32))
+        assert np.array_equal(after.humans.cost, state.humans.cost) != adapt

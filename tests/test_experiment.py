@@ -20,7 +20,7 @@ TINY = TaskConfig(ratio_machines=0.25, human_learning_episodes=4, training_eps=3
 
 def _run(scn, task=TINY, model="aon", seed=7):
     fake, records = FakeDay(), []
-    out = run_experiment(scn, task, EnvConfig(), make_baseline(model), env_seed=seed, day_fn=fake,
+    out = run_experiment(scn, task, EnvConfig(), make_baseline(model), env_seed=seed, executor=fake,
                          sink=records.append)
     return out, fake, records
 

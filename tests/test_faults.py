@@ -123,6 +123,16 @@ def test_a_task_without_cavs_is_refused_before_any_sumo_day(confs, tmp_path):
     assert ex.batches == [] and not results.exists()
 
 
+class _NoDays:
+    """A DayExecutor for runs that must be refused before their first day."""
+
+    def run_days(self, *_args, **_kwargs):
+        pytest.fail("no SUMO day")
+
+    def close(self) -> None:
+        pass
+
+
 @pytest.mark.parametrize(("key", "metric"), [("test_eps", "t_CAV"), ("human_learning_episodes", "t_pre")])
 def test_a_task_whose_metrics_cannot_exist_is_refused(confs, tmp_path, key, metric):
     """Before: exit 0 with N/A metrics."""
@@ -131,7 +141,7 @@ def test_a_task_whose_metrics_cannot_exist_is_refused(confs, tmp_path, key, metr
         _train(confs, tmp_path / "results", "k", task_conf=task)
     with pytest.raises(ConfigError, match=rf"key '{key}' is 0"):
         run_baseline(BaselineRequest(task_conf=task, results_dir=str(tmp_path / "results"), progress=False),
-                     day_fn=lambda *a, **k: pytest.fail("no SUMO day"))
+                     executor=_NoDays())
     assert not (tmp_path / "results").exists()
 
 

@@ -43,12 +43,6 @@ def fake_day_model(scn):
     return times
 
 
-def _sumo(scn, day_fn):
-    def simulate(day, phase, choices, is_cav):
-        return day_fn(scn, choices, seed=42)
-    return simulate
-
-
 def _same(a, b) -> bool:
     return all(jax.tree_util.tree_leaves(jax.tree_util.tree_map(
         lambda x, y: bool(np.allclose(np.asarray(x), np.asarray(y), equal_nan=True)), a, b)))
@@ -61,12 +55,12 @@ def test_surrogate_days_then_sumo_days_equal_all_sumo_days_when_the_model_is_exa
     task = TaskConfig(human_learning_episodes=H)
     hp = task.human_params()
     fake = FakeDay()
-    all_days = train_humans(scn, hp, H, env_seed=42, simulate=_sumo(scn, fake))
+    all_days = train_humans(scn, hp, H, env_seed=42, executor=fake)
     switch, means = train_humans_on_model(scn, hp, S, env_seed=42, travel_times=fake_day_model(scn))
-    first_s = train_humans(scn, hp, S, env_seed=42, simulate=_sumo(scn, FakeDay()))
+    first_s = train_humans(scn, hp, S, env_seed=42, executor=FakeDay())
     assert _same(switch, first_s) and means.shape == (S,)
     rest = FakeDay()
-    fast = train_humans(scn, hp, H, env_seed=42, simulate=_sumo(scn, rest), first_day=S + 1, humans=switch)
+    fast = train_humans(scn, hp, H, env_seed=42, executor=rest, first_day=S + 1, humans=switch)
     assert len(rest.calls) == H - S
     assert _same(fast, all_days)
     # and the model really drives them: a model twice as slow leaves other knowledge
@@ -142,6 +136,6 @@ def test_a_baseline_refuses_to_replay_a_human_phase_that_began_on_the_surrogate(
     with pytest.raises(UrbJaxError, match="ran on the surrogate"):
         run_baseline(BaselineRequest(model="aon", results_dir=str(root), exp_id="base", progress=False,
                                      task_conf=fast_confs["task_conf"],
-                                     human_phase_from="src"), day_fn=FakeDay())
+                                     human_phase_from="src"), executor=FakeDay())
     assert not (root / "base").exists()
 

@@ -168,9 +168,9 @@ def test_an_outside_policy_runs_urbs_test_days(tmp_path):
         return aon if idx is None else aon[idx]
 
     req = BaselineRequest(results_dir=str(tmp_path), progress=False)
-    ours = run_policy(FixedPolicy(policy, "aon_fn"), req, day_fn=FakeDay(), task_overrides=TINY)
+    ours = run_policy(FixedPolicy(policy, "aon_fn"), req, executor=FakeDay(), task_overrides=TINY)
     base = run_baseline(BaselineRequest(model="aon", results_dir=str(tmp_path), progress=False),
-                        day_fn=FakeDay(), task_overrides=TINY)
+                        executor=FakeDay(), task_overrides=TINY)
     assert ours.folder.name == "aon_fn_urb_grid_config1_s42"
     pd.testing.assert_frame_equal(read_records(ours.folder), read_records(base.folder))
     np.testing.assert_equal(ours.metrics, base.metrics)  # NaN (no training day) equal too

@@ -30,13 +30,13 @@ GLOBAL = EnvConfig(observations="global_previous_agents")
 
 
 def test_api_test(grid_scenario):
-    env = UrbAECEnv(grid_scenario, TASK, day_fn=FakeDay(), env_seed=3)
+    env = UrbAECEnv(grid_scenario, TASK, executor=FakeDay(), env_seed=3)
     api_test(env, num_cycles=60)
 
 
 @pytest.mark.parametrize("env_config", [None, GLOBAL])
 def test_parallel_api_test(grid_scenario, env_config):
-    env = UrbParallelEnv(grid_scenario, TASK, env_config, day_fn=FakeDay(), env_seed=3)
+    env = UrbParallelEnv(grid_scenario, TASK, env_config, executor=FakeDay(), env_seed=3)
     assert env.num_levels == (3 if env_config is None else 20)  # the test steps through every level
     parallel_api_test(env, num_cycles=60)
 
@@ -44,7 +44,7 @@ def test_parallel_api_test(grid_scenario, env_config):
 def test_turn_order_observation_and_rewards(grid_scenario):
     scn = grid_scenario
     fake = FakeDay()
-    env = UrbAECEnv(scn, TASK, day_fn=fake, env_seed=3)
+    env = UrbAECEnv(scn, TASK, executor=fake, env_seed=3)
     assert len(fake.calls) == 2  # the human phase ran
     env.reset()
     order = []
@@ -129,8 +129,8 @@ def test_aec_and_parallel_same_policy_same_days(grid_scenario, env_config):
     rewards and (adapting) humans over two days; each CAV's acting observation equals the
     observation function applied to the day's final joint choices (later CAVs cannot change it)."""
     fake_a, fake_p = FakeDay(), FakeDay()
-    aec = UrbAECEnv(grid_scenario, BIG, env_config, day_fn=fake_a, env_seed=5)
-    par = UrbParallelEnv(grid_scenario, BIG, env_config, day_fn=fake_p, env_seed=5)
+    aec = UrbAECEnv(grid_scenario, BIG, env_config, executor=fake_a, env_seed=5)
+    par = UrbParallelEnv(grid_scenario, BIG, env_config, executor=fake_p, env_seed=5)
     assert par.num_levels >= (10 if env_config is None else 100)
     a_days, p_days = _aec_days(aec, 2), _parallel_days(par, 2)
     _assert_same_days(a_days, p_days, aec)
@@ -154,7 +154,7 @@ def test_aec_and_parallel_same_sumo_days(grid_scenario):
 
 
 def test_parallel_step_needs_the_acting_cavs_and_ignores_the_rest(grid_scenario):
-    env = UrbParallelEnv(grid_scenario, TASK, day_fn=FakeDay(), env_seed=3)
+    env = UrbParallelEnv(grid_scenario, TASK, executor=FakeDay(), env_seed=3)
     _obs, infos = env.reset()
     acting = [a for a in env.agents if infos[a]["acting"]]
     waiting = [a for a in env.agents if not infos[a]["acting"]]

@@ -84,7 +84,7 @@ def test_baseline_run_writes_results_folder_and_leaderboard(tmp_path):
     for seed in (1, 2):
         out = run_baseline(BaselineRequest(model="random", task_conf="config1", results_dir=str(tmp_path),
                                            env_seed=seed,
-                                           progress=False), day_fn=FakeDay(), task_overrides=TINY)
+                                           progress=False), executor=FakeDay(), task_overrides=TINY)
     folder = out.folder
     cfg = json.loads((folder / "exp_config.json").read_text())
     assert cfg["status"] == "done" and cfg["env_seed"] == 2 and cfg["baseline_model"] == "random"
@@ -98,7 +98,7 @@ def test_baseline_run_writes_results_folder_and_leaderboard(tmp_path):
     assert read_records(folder)["day"].max() == 7
     with pytest.raises(ResultsExistError):
         run_baseline(BaselineRequest(model="random", task_conf="config1", results_dir=str(tmp_path),
-                                     env_seed=2, progress=False), day_fn=FakeDay(), task_overrides=TINY)
+                                     env_seed=2, progress=False), executor=FakeDay(), task_overrides=TINY)
     table = aggregate(collect(tmp_path))
     assert len(table) == 1 and table.loc[0, "runs"] == 2
     runs = collect(tmp_path)
@@ -121,13 +121,13 @@ def test_human_phase_replay_matches_a_fresh_run(tmp_path):
     from urb_jax.core.errors import UrbJaxError
 
     src = run_baseline(BaselineRequest(model="aon", results_dir=str(tmp_path), exp_id="src", progress=False),
-                       day_fn=FakeDay(), task_overrides=TINY)
+                       executor=FakeDay(), task_overrides=TINY)
     fresh = run_baseline(BaselineRequest(model="random", results_dir=str(tmp_path), exp_id="fresh",
-                                         progress=False), day_fn=FakeDay(), task_overrides=TINY)
+                                         progress=False), executor=FakeDay(), task_overrides=TINY)
     fake = FakeDay()
     replayed = run_baseline(BaselineRequest(model="random", results_dir=str(tmp_path), exp_id="replayed",
                                             progress=False,
-                                            human_phase_from="src"), day_fn=fake, task_overrides=TINY)
+                                            human_phase_from="src"), executor=fake, task_overrides=TINY)
     assert len(fake.calls) == 2 + 2  # training + test days only
     a, b = read_records(fresh.folder), read_records(replayed.folder)
     pd.testing.assert_frame_equal(a, b)
@@ -135,21 +135,21 @@ def test_human_phase_replay_matches_a_fresh_run(tmp_path):
     with pytest.raises(UrbJaxError, match="env_seed"):
         run_baseline(BaselineRequest(model="random", results_dir=str(tmp_path), exp_id="other_seed",
                                      env_seed=5, progress=False,
-                                     human_phase_from="src"), day_fn=FakeDay(), task_overrides=TINY)
+                                     human_phase_from="src"), executor=FakeDay(), task_overrides=TINY)
     rec = read_records(src.folder)
     rec.loc[(rec.day == 2) & (rec.agent == rec.agent.iloc[0]), "action"] += 1
     rec.to_parquet(src.folder / "records.parquet")
     with pytest.raises(UrbJaxError, match="day 2"):
         run_baseline(BaselineRequest(model="random", results_dir=str(tmp_path), exp_id="tampered",
                                      progress=False,
-                                     human_phase_from="src"), day_fn=FakeDay(), task_overrides=TINY)
+                                     human_phase_from="src"), executor=FakeDay(), task_overrides=TINY)
 
 
 def test_metrics_command_recomputes_a_finished_runs_columns(tmp_path, capsys):
     """`urb-jax metrics RUN`: an older run without the duration columns gets them, equal to what
     the run itself wrote; an unfinished run is refused with the fix."""
     out = run_baseline(BaselineRequest(model="random", results_dir=str(tmp_path), exp_id="old",
-                                       progress=False), day_fn=FakeDay(), task_overrides=TINY)
+                                       progress=False), executor=FakeDay(), task_overrides=TINY)
     path = out.folder / "metrics" / "BenchmarkMetrics.csv"
     written = pd.read_csv(path)
     assert written["t_CAV_duration"].iloc[0] == pytest.approx(written["t_CAV"].iloc[0] - 2 / 60)
@@ -172,7 +172,7 @@ def test_a_baseline_runs_each_distinct_day_once(tmp_path):
 
     fake = FakeDay()
     overrides = {"human_learning_episodes": 6, "training_eps": 8, "test_eps": 4}
-    out = run_baseline(BaselineRequest(model="aon", results_dir=str(tmp_path), progress=False), day_fn=fake,
+    out = run_baseline(BaselineRequest(model="aon", results_dir=str(tmp_path), progress=False), executor=fake,
                        task_overrides=overrides)
     cfg = json.loads((out.folder / "exp_config.json").read_text())
     assert cfg["sumo_days_run"] == len(fake.calls) < out.days == 18

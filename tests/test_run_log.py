@@ -65,7 +65,7 @@ def test_a_corrupt_scenario_cache_is_rebuilt_with_one_warning_in_the_run_log(tmp
     with caplog.at_level(logging.WARNING, logger="urb_jax"):
         out = run_baseline(BaselineRequest(model="aon", task_conf="config1",
                                            results_dir=str(tmp_path / "results"),
-                                           progress=False), day_fn=FakeDay(), task_overrides=TINY)
+                                           progress=False), executor=FakeDay(), task_overrides=TINY)
     warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert len(warnings) == 1 and str(entry) in warnings[0] and "rebuilding it" in warnings[0]
     (line,) = (out.folder / RUN_LOG).read_text().splitlines()

@@ -20,7 +20,7 @@ from urb_jax.runs.suite import SuiteRun, run_progress, run_suite, status, write_
 def _runs(conf: Path, executor: FakeExecutor, day: FakeDay, **train_options) -> list[SuiteRun]:
     return [SuiteRun("train", "iqls", {"alg": "iql_star", "task_conf": "test", "hybrid_conf": str(conf),
                                        "seeds": [0, 1]}, {"executor": executor, **train_options}),
-            SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test"}, {"day_fn": day})]
+            SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test"}, {"executor": day})]
 
 
 @pytest.mark.slow
@@ -55,7 +55,7 @@ def test_suite_resumes_skips_and_reports(tmp_path):
     assert json.loads((results / "aon" / "exp_config.json").read_text())["human_phase_from"] == "iqls_s0"
     alone = run_baseline(BaselineRequest(model="aon", task_conf="test", exp_id="aon",
                                          results_dir=str(tmp_path / "alone"),
-                                         progress=False), day_fn=FakeDay())
+                                         progress=False), executor=FakeDay())
     pd.testing.assert_frame_equal(read_records(alone.folder), read_records(results / "aon"))
     # a third time: everything finished, nothing simulated
     ex, day = FakeExecutor(), FakeDay()
@@ -80,7 +80,7 @@ def test_a_run_another_process_is_writing_is_running_not_stopped(tmp_path):
     results = tmp_path / "results"
     (results / "aon").mkdir(parents=True)
     (results / "aon" / "exp_config.json").write_text(json.dumps({"status": "created"}))
-    run = SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test"}, {"day_fn": FakeDay()})
+    run = SuiteRun("baseline", "aon", {"model": "aon", "task_conf": "test"}, {"executor": FakeDay()})
     assert status(results, run) == "stopped"
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys, pathlib; from urb_jax.runs.folder import lock_run; "
@@ -252,7 +252,8 @@ def test_progress_estimates_the_groups_not_started_and_the_run(tmp_path):
 def test_progress_of_a_sumo_only_run_counts_its_sumo_days(tmp_path):
     """A --mode sumo run's rounds have no surrogate leg: its pace is its SUMO days' seconds."""
     rows = [{"round": 1, "sumo_days": 4, "sumo_s": 8.0}, {"round": 2, "sumo_days": 4, "sumo_s": 12.0}]
-    _fake_run(tmp_path / "c_s0", ["c_s0", "c_s1"], {"rounds_done": 2, "rounds_total": 32, "rounds": [rows, rows]})
+    _fake_run(tmp_path / "c_s0", ["c_s0", "c_s1"],
+              {"rounds_done": 2, "rounds_total": 32, "rounds": [rows, rows]})
     _fake_run(tmp_path / "c_s1", ["c_s0", "c_s1"])
     lines = run_progress(tmp_path, SuiteRun("train", "c", {"seeds": [0, 1]}))
     assert lines[0].endswith("its rounds took 10 s each here, so the 30 left about 5.0 min, then the test "

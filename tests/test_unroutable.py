@@ -106,7 +106,7 @@ def test_baseline_records_dropped_agents_in_exp_config(broken_grid, tmp_path, ca
     expected = _unroutable_ids(broken_grid)
     out = run_baseline(BaselineRequest(model="aon", net=str(broken_grid), results_dir=str(tmp_path / "res"),
                                        progress=False,
-                                       drop_unroutable=True), day_fn=FakeDay(), task_overrides=TINY)
+                                       drop_unroutable=True), executor=FakeDay(), task_overrides=TINY)
     cfg = json.loads((out.folder / "exp_config.json").read_text())
     assert cfg["drop_unroutable"] is True
     assert cfg["dropped_unroutable_agents"] == {"count": len(expected), "ids": expected}

@@ -59,7 +59,7 @@ def runs(tmp_path_factory):
     out = run_baseline(BaselineRequest(model="random", task_conf="config1",
                                        results_dir=str(root / "results"), exp_id="rnd",
                                        progress=False),
-                       day_fn=FakeDay(),
+                       executor=FakeDay(),
                        task_overrides={"human_learning_episodes": H, "training_eps": T, "test_eps": E})
     old = root / "results" / "old_iql"
     shutil.copytree(out.folder, old)

@@ -1,16 +1,26 @@
 """A deterministic stand-in for a SUMO day: route time = FFT * (1 + load / 20) per (OD, route),
-SUMO duration 2 s shorter (as `sumo_bridge` records them); and FakeExecutor, the DayExecutor that
-runs it (the tests', tests/support/compile_cache_run.py's and benchmarks/gpu_hybrid_check.py's)."""
+SUMO duration 2 s shorter (as `sumo_bridge` records them), itself a DayExecutor that runs a batch
+a day at a time; and FakeExecutor, a DayExecutor that runs it and remembers every batch (the
+tests', tests/support/compile_cache_run.py's and benchmarks/gpu_hybrid_check.py's)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from urb_jax.sumo_bridge.batch import as_batch
 from urb_jax.sumo_bridge.types import ARRIVED, DayResult
 
 
 class FakeDay:
-    """Callable with sumo_bridge.run_day's signature; counts calls and remembers every input."""
+    """Callable with sumo_bridge.run_day's signature, and a DayExecutor; counts days and remembers
+    every input (choices [N], CAV mask [N] or None)."""
+
+    def run_days(self, scenario, choices, seeds, is_cav=None) -> list[DayResult]:
+        batch = as_batch(choices, seeds, is_cav)
+        return [self(scenario, c, seed=s, is_cav=m) for c, s, m in zip(*batch, strict=True)]
+
+    def close(self) -> None:
+        pass
 
     def __init__(self) -> None:
         self.calls: list[tuple[np.ndarray, np.ndarray | None]] = []
@@ -49,8 +59,7 @@ class FakeExecutor:
             raise KeyboardInterrupt("simulated kill during a SUMO batch")
         choices = np.asarray(choices)
         self.batches.append((choices.copy(), None if is_cav is None else np.asarray(is_cav).copy()))
-        return [self.day(scenario, c, seed=int(s), is_cav=is_cav)
-                for c, s in zip(choices, np.broadcast_to(seeds, (len(choices),)), strict=True)]
+        return self.day.run_days(scenario, choices, seeds, is_cav)
 
     def close(self) -> None:
         pass

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
-from urb_jax.game.humans import HumanParams, HumanState, act, aon_routes, end_day, init_humans
+from urb_jax.game.humans import HumanParams, HumanState, act, act_jit, aon_routes, end_day_jit, init_humans
 from urb_jax.game.observations import ObservationSpec, make_observation_spec, observe
 from urb_jax.game.rewards import CREDITS, cav_rewards, credit_rewards, externalities, marginal_cost_rewards
 
@@ -37,6 +37,15 @@ EnvParams = Any
 TravelTimeFn = Callable[..., jnp.ndarray]
 StepResult = tuple[jnp.ndarray, "EnvState", jnp.ndarray, jnp.ndarray, dict[str, jnp.ndarray]]
 Margins = tuple[jnp.ndarray, jnp.ndarray]  # (externalities [3, N], model times [N]): rewards.externalities
+
+
+class DayKeys(NamedTuple):
+    """The keys of a day's end: the humans' learning today and their draw of tomorrow's routes.
+    `step` splits one key into them; a caller with its own key schedule (the SUMO protocol,
+    PettingZoo) passes them to `step_with_times`, so each driver keeps its bytes."""
+
+    learn: jax.Array
+    act_next: jax.Array
 
 
 class EnvState(NamedTuple):
@@ -79,9 +88,12 @@ class RoutingEnv:
         object.__setattr__(self, "cav_index", np.flatnonzero(is_cav))
         spec = make_observation_spec(self.observation_type, scn.agent_od, scn.agent_depart, scn.k)
         object.__setattr__(self, "obs_spec", spec)
+        object.__setattr__(self, "_day_outputs_jit", jax.jit(self._day_outputs))
 
     cav_index: np.ndarray = field(init=False)
     obs_spec: ObservationSpec = field(init=False)
+    _day_outputs_jit: Callable[..., tuple[jnp.ndarray, dict[str, jnp.ndarray]]] = field(init=False,
+                                                                                           repr=False)
 
     # ---- sizes
     @property
@@ -109,12 +121,6 @@ class RoutingEnv:
     def cav_od(self) -> np.ndarray:
         """[C] OD index of each CAV, e.g. for an OD embedding."""
         return self.scenario.agent_od[self.cav_index]
-
-    @property
-    def humans_learn(self) -> bool:
-        """Whether humans learn at the end of each day: when the task lets them adapt, and always
-        in an env without CAVs (such an env is the human learning phase, e.g. in benchmarks)."""
-        return self.humans_adapt or self.n_cavs == 0
 
     # ---- functional API
     def reset(self, key: jax.Array) -> tuple[jnp.ndarray, EnvState]:
@@ -158,10 +164,11 @@ class RoutingEnv:
         (provisional obs for tomorrow, state, CAV rewards [C], dones [C] (every day ends the CAVs'
         episode, as in URB), info)."""
         choices = self.joint_actions(state, cav_actions)
+        keys = DayKeys(*jax.random.split(key))
         if self.uses_model:
             model = self.model_externalities(params, choices)
-            return self._end_day(key, state, cav_actions, choices, model[1], model)
-        return self._end_day(key, state, cav_actions, choices, self.travel_times(params, choices))
+            return self._end_day(keys, state, cav_actions, choices, model[1], model)
+        return self._end_day(keys, state, cav_actions, choices, self.travel_times(params, choices))
 
     def model_externalities(self, params: EnvParams, choices: jnp.ndarray) -> Margins:
         """(externalities [3, N], model times [N]) of `choices` under travel_time_fn
@@ -169,17 +176,20 @@ class RoutingEnv:
         return externalities(lambda probs: self.travel_times(params, probs), choices, self.is_cav,
                              self.n_actions)
 
-    def step_with_times(self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray,
+    def step_with_times(self, key: jax.Array | DayKeys, state: EnvState, cav_actions: jnp.ndarray,
                         times: jnp.ndarray, model: Margins | None = None) -> StepResult:
         """The same day with measured travel times [N] (minutes, e.g. SUMO's) of today's choices;
-        `model`: `model_externalities` of today's choices under a travel-time model (required with
+        `key`: split as `step` splits it, or the day's explicit `DayKeys`; `model`:
+        `model_externalities` of today's choices under a travel-time model (required with
         reward_credit marginal: SUMO measures the day, the model its derivative)."""
-        return self._end_day(key, state, cav_actions, self.joint_actions(state, cav_actions), times, model)
+        keys = key if isinstance(key, DayKeys) else DayKeys(*jax.random.split(key))
+        return self._end_day(keys, state, cav_actions, self.joint_actions(state, cav_actions), times, model)
 
-    def _end_day(self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray, choices: jnp.ndarray,
+    def _end_day(self, keys: DayKeys, state: EnvState, cav_actions: jnp.ndarray, choices: jnp.ndarray,
                  times: jnp.ndarray, model: Margins | None = None) -> StepResult:
-        """The one day transition: CAV rewards, the humans' day end, tomorrow's human choices."""
-        k_learn, k_act = jax.random.split(key)
+        """The one day transition: CAV rewards, the humans' day end (they learn when the task lets
+        them adapt), tomorrow's human choices. Called eagerly (a SUMO day at a time), the rewards
+        run op by op and the rest as three compiled calls; traced, those inline."""
         is_cav = jnp.asarray(self.is_cav)
         if self.uses_model and model is None:
             raise ValueError("reward_credit 'marginal' and marginal_cost_beta need the model's externalities "
@@ -193,16 +203,22 @@ class RoutingEnv:
         if self.marginal_cost_beta != 0.0:
             assert model is not None  # uses_model: refused above when missing
             rewards_all = marginal_cost_rewards(rewards_all, model[0], self.marginal_cost_beta)
-        humans = end_day(k_learn, state.humans, choices, times, self.human_params, self.is_cav,
-                         self.humans_learn)
-        human_actions = act(k_act, humans, self.human_params, jnp.asarray(self.scenario.fft))
+        humans = end_day_jit(keys.learn, state.humans, choices, times, self.human_params, self.is_cav,
+                             learn_today=self.humans_adapt)
+        human_actions = act_jit(keys.act_next, humans, self.human_params, jnp.asarray(self.scenario.fft))
         new_state = EnvState(humans, human_actions, cav_actions.astype(jnp.int32), times, state.day + 1)
+        next_obs, info = self._day_outputs_jit(new_state, choices)
+        return next_obs, new_state, rewards_all[self.cav_index], jnp.ones((self.n_cavs,), dtype=bool), info
+
+    def _day_outputs(self, new_state: EnvState, choices: jnp.ndarray
+                     ) -> tuple[jnp.ndarray, dict[str, jnp.ndarray]]:
+        """(tomorrow's provisional CAV observations [C, D], the day's info) after a day (jitted once
+        per env as `_day_outputs_jit`)."""
+        is_cav, times = jnp.asarray(self.is_cav), new_state.times
         info = {
             "times": times,
             "choices": choices,
             "mean_time_cav": jnp.where(is_cav, times, 0.0).sum() / jnp.maximum(is_cav.sum(), 1),
             "mean_time_human": jnp.where(~is_cav, times, 0.0).sum() / jnp.maximum((~is_cav).sum(), 1),
         }
-        dones = jnp.ones((self.n_cavs,), dtype=bool)
-        next_obs = self.observe(new_state, new_state.cav_actions)
-        return next_obs, new_state, rewards_all[self.cav_index], dones, info
+        return self.observe(new_state, new_state.cav_actions), info

@@ -173,7 +173,7 @@ def end_day(
     On a learning day the humans (not the CAVs) update their expected times (`learn`); otherwise
     their knowledge is frozen and everyone only remembers today's route (`last_action`, the
     reference of the switching threshold). Whether a day is a learning day is the caller's phase
-    rule (`RoutingEnv.humans_learn`, the SUMO protocol's `should_humans_adapt`).
+    rule (the task's `should_humans_adapt`, `RoutingEnv.humans_adapt`).
     """
     if learn_today:
         return learn(key, state, choices, times, params, learning=~jnp.asarray(is_cav))

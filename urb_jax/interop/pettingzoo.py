@@ -4,9 +4,11 @@ One episode = one day. Agents are the CAVs (names `str(agent_id)`), acting once 
 are not agents — their choices for the day are drawn at `reset` from their learned model. A CAV
 observes its own start time and, per route, how many agents of its observation group (its OD)
 with a strictly earlier departure took that route today (humans' today choices and earlier CAVs'
-actions). After the last CAV acts, the day is simulated by `day_fn` (SUMO by default), every CAV
-gets its behaviour reward (minutes), all CAVs terminate, and humans learn if the task lets them
-adapt. The human learning phase runs in the constructor unless `humans` is given.
+actions). After the last CAV acts, the day runs on the env's `executor` (SUMO in this process by
+default) and ends with the game's one day transition (`RoutingEnv.step_with_times`): every CAV
+gets its behaviour reward (minutes), all CAVs terminate, humans learn if the task lets them adapt
+and draw tomorrow's routes. The human learning phase runs in the constructor unless `humans` is
+given.
 
 `UrbAECEnv` steps one CAV at a time in departure order (RouteRL's order). `UrbParallelEnv` steps
 one dependency level at a time (`urb_jax.game.rollout.cav_levels`): the CAVs of a level observe
@@ -32,13 +34,13 @@ from pettingzoo.utils import AgentSelector
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.errors import ConfigError
 from urb_jax.game.config import EnvConfig, TaskConfig
-from urb_jax.game.humans import HumanState, act_jit, end_day_jit
+from urb_jax.game.env import DayKeys, EnvState, RoutingEnv
+from urb_jax.game.humans import HumanState, act_jit
 from urb_jax.game.mutation import draw_cavs
-from urb_jax.game.observations import IncrementalObservations, make_observation_spec
-from urb_jax.game.rewards import cav_rewards
+from urb_jax.game.observations import IncrementalObservations
 from urb_jax.game.rollout import cav_levels
-from urb_jax.sumo_bridge import run_day
-from urb_jax.training.protocol import DayFn, train_humans
+from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, one_day
+from urb_jax.training.protocol import train_humans
 
 
 @jax.jit
@@ -53,7 +55,7 @@ class _SumoDays:
     end. Subclasses call `_setup` from their constructor."""
 
     def _setup(self, scenario: Scenario, task: TaskConfig | None, env_config: EnvConfig | None,
-               env_seed: int, day_fn: DayFn | None, humans: HumanState | None,
+               env_seed: int, executor: DayExecutor | None, humans: HumanState | None,
                is_cav: np.ndarray | None) -> None:
         self.scenario = scenario
         self.task = task or TaskConfig()
@@ -64,25 +66,26 @@ class _SumoDays:
                               "or surrogate mode), or set reward_credit 'group' and marginal_cost_beta 0.")
         self.env_config = env_config or EnvConfig()
         self.env_seed = env_seed
-        self.day_fn = day_fn or run_day
+        self._owns_executor = executor is None
+        self.executor: DayExecutor = InProcessExecutor() if executor is None else executor
         self.hp = self.task.human_params()
-        self.coefficients = self.task.reward_coefficients
         n = scenario.n_agents
         self.fft = jnp.asarray(scenario.fft, dtype=jnp.float32)
         if humans is None:
-            def simulate(day: int, phase: str, choices: np.ndarray, mask: np.ndarray) -> Any:
-                return self.day_fn(scenario, choices, seed=env_seed, is_cav=mask)
-
             humans = train_humans(scenario, self.hp, self.task.human_learning_episodes, env_seed=env_seed,
-                                  simulate=simulate)
+                                  executor=self.executor)
         self.humans = humans
         self.is_cav = (draw_cavs(env_seed, n, self.task.ratio_machines, agent_id=scenario.agent_id)
                        if is_cav is None else np.asarray(is_cav, dtype=bool))
-        self.cav_index = np.flatnonzero(self.is_cav)  # departure order (the Scenario is sorted)
+        self.game = RoutingEnv(scenario, self.is_cav, human_params=self.hp,
+                               reward_coefficients=self.task.reward_coefficients,
+                               observation_type=self.env_config.observations,
+                               humans_adapt=self.task.should_humans_adapt, human_init=humans)
+        self.cav_index = self.game.cav_index  # departure order (the Scenario is sorted)
         self.possible_agents = [str(int(scenario.agent_id[i])) for i in self.cav_index]
         self._pos = dict(zip(self.possible_agents, range(len(self.possible_agents)), strict=True))
-        self.spec = make_observation_spec(self.env_config.observations, scenario.agent_od,
-                                          scenario.agent_depart, scenario.k)
+        self.spec = self.game.obs_spec
+        self._drawn: tuple[int, jax.Array] | None = None  # (day, its human draws) a day's end made
         self._observations = IncrementalObservations(self.spec)
         high = np.finfo(np.float32).max
         self._obs_space = gymnasium.spaces.Box(0.0, high, shape=(self.spec.size,), dtype=np.float32)
@@ -90,6 +93,11 @@ class _SumoDays:
         self.day = self.task.human_learning_episodes
         self._key = jax.random.PRNGKey(env_seed)
         self.last_result: Any = None
+
+    def _close_days(self) -> None:
+        """Close the SUMO executor this env made (one given to it stays open: its owner closes it)."""
+        if self._owns_executor:
+            self.executor.close()
 
     def observation_space(self, agent: str) -> gymnasium.spaces.Box:
         return self._obs_space
@@ -106,11 +114,16 @@ class _SumoDays:
         return view
 
     def _start_day(self, seed: int | None) -> None:
+        """Today's human draws: those yesterday's end drew for today under the same key, else drawn now."""
         if seed is not None:
-            self._key = jax.random.PRNGKey(seed)
+            self._key, self._drawn = jax.random.PRNGKey(seed), None
         self.day += 1
         k_act, self._k_end = _day_keys(self._key, self.day)
-        self.human_choices = np.asarray(act_jit(k_act, self.humans, self.hp, self.fft))
+        if self._drawn is not None and self._drawn[0] == self.day:
+            drawn = self._drawn[1]
+        else:
+            drawn = act_jit(k_act, self.humans, self.hp, self.fft)
+        self.human_choices = np.asarray(drawn)
         self._observations.reset(self.human_choices)
 
     def _rows(self, agents: list[str]) -> np.ndarray:
@@ -125,18 +138,20 @@ class _SumoDays:
         return dict(zip(agents, obs, strict=True))
 
     def _end_day(self) -> tuple[dict[str, float], dict[str, dict]]:
-        """Simulate today's joint choices; (reward, info) per CAV; humans end the day."""
+        """Simulate today's joint choices; (reward, info) per CAV; the game's day transition (called
+        eagerly: jitted, XLA may sum the group means in another order, a last-bit change)."""
         joint = self._observations.actions.copy()
-        res = self.day_fn(self.scenario, joint.copy(), seed=self.env_seed, is_cav=self.is_cav)
+        res = one_day(self.executor, self.scenario, joint.copy(), self.env_seed, self.is_cav)
         self.last_result = res
         times = np.asarray(res.travel_time, dtype=np.float32)
-        # eager, as before: jitted, XLA may sum the group means in another order (last-bit changes)
-        rewards = np.asarray(cav_rewards(jnp.asarray(times), jnp.asarray(self.is_cav), self.coefficients))
-        rewards_c, times_c = rewards[self.cav_index].tolist(), times[self.cav_index].tolist()
-        # As the SUMO protocol: humans learn only when the task lets them adapt.
-        self.humans = end_day_jit(self._k_end, self.humans, jnp.asarray(joint),
-                                  jnp.asarray(times), self.hp, self.is_cav,
-                                  learn_today=self.task.should_humans_adapt)
+        # yesterday's CAV routes and times are not read by the day's end
+        today = EnvState(self.humans, jnp.asarray(self.human_choices, jnp.int32), jnp.zeros(0, jnp.int32),
+                         jnp.zeros(0, jnp.float32), jnp.asarray(self.day - 1, jnp.int32))
+        keys = DayKeys(self._k_end, _day_keys(self._key, self.day + 1)[0])
+        cav_actions = jnp.asarray(joint[self.cav_index])
+        _, tomorrow, rewards, _, _ = self.game.step_with_times(keys, today, cav_actions, jnp.asarray(times))
+        self.humans, self._drawn = tomorrow.humans, (self.day + 1, tomorrow.human_actions)
+        rewards_c, times_c = np.asarray(rewards).tolist(), times[self.cav_index].tolist()
         return (dict(zip(self.possible_agents, rewards_c, strict=True)),
                 {a: {"travel_time": t, "day": self.day} for a, t in zip(self.possible_agents, times_c,
                                                                          strict=True)})
@@ -151,11 +166,11 @@ class UrbAECEnv(_SumoDays, AECEnv):
     metadata: ClassVar[dict] = {"name": "urb_jax_v0", "render_modes": [], "is_parallelizable": False}
 
     def __init__(self, scenario: Scenario, task: TaskConfig | None = None,
-                 env_config: EnvConfig | None = None, *, env_seed: int = 42, day_fn: DayFn | None = None,
-                 humans: HumanState | None = None,
+                 env_config: EnvConfig | None = None, *, env_seed: int = 42,
+                 executor: DayExecutor | None = None, humans: HumanState | None = None,
                  is_cav: np.ndarray | None = None) -> None:
         super().__init__()
-        self._setup(scenario, task, env_config, env_seed, day_fn, humans, is_cav)
+        self._setup(scenario, task, env_config, env_seed, executor, humans, is_cav)
 
     def reset(self, seed: int | None = None, options: dict | None = None) -> None:
         self._start_day(seed)
@@ -209,7 +224,7 @@ class UrbAECEnv(_SumoDays, AECEnv):
         return None
 
     def close(self) -> None:
-        return None
+        self._close_days()
 
 
 class UrbParallelEnv(_SumoDays, ParallelEnv):
@@ -223,10 +238,10 @@ class UrbParallelEnv(_SumoDays, ParallelEnv):
     metadata: ClassVar[dict] = {"name": "urb_jax_parallel_v0", "render_modes": []}
 
     def __init__(self, scenario: Scenario, task: TaskConfig | None = None,
-                 env_config: EnvConfig | None = None, *, env_seed: int = 42, day_fn: DayFn | None = None,
-                 humans: HumanState | None = None,
+                 env_config: EnvConfig | None = None, *, env_seed: int = 42,
+                 executor: DayExecutor | None = None, humans: HumanState | None = None,
                  is_cav: np.ndarray | None = None) -> None:
-        self._setup(scenario, task, env_config, env_seed, day_fn, humans, is_cav)
+        self._setup(scenario, task, env_config, env_seed, executor, humans, is_cav)
         levels = cav_levels(self.spec, self.cav_index)  # CAV-axis indices per level
         self.levels: tuple[list[str], ...] = tuple([self.possible_agents[c] for c in lv] for lv in levels)
         self.num_levels = len(self.levels)
@@ -271,4 +286,4 @@ class UrbParallelEnv(_SumoDays, ParallelEnv):
         return None
 
     def close(self) -> None:
-        return None
+        self._close_days()

@@ -4,13 +4,10 @@ policy trained elsewhere), every day in SUMO, in one results folder with every r
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from urb_jax.algorithms.baselines import CavPolicy, make_baseline
 from urb_jax.algorithms.registry import load_baseline_config
@@ -43,28 +40,28 @@ from urb_jax.runs.urb_configs import (
     override_record,
     run_overrides,
 )
-from urb_jax.sumo_bridge import DayExecutor, DayResult, MemoExecutor, run_day
+from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, MemoExecutor
 from urb_jax.training.human_phase import (
     check_replayable,
     load_replay,
 )
-from urb_jax.training.protocol import DayFn, run_experiment
+from urb_jax.training.protocol import run_experiment
 
 
 @with_run_log
-def run_baseline(req: BaselineRequest, *, day_fn: DayFn | None = None,
+def run_baseline(req: BaselineRequest, *, executor: DayExecutor | None = None,
                  task_overrides: dict[str, Any] | None = None,
                  human_phase_candidates: Sequence[str] = ()) -> RunResult:
     """One baseline experiment in results/<exp_id>/ (`req.human_phase_from`: days 1..H replayed from
     that run's records instead of simulated; `human_phase_candidates`: from the first of these
-    finished runs that can be replayed, if any). `day_fn`: simulate each day with it instead of
-    SUMO; `task_overrides`: task config values set directly (tests)."""
+    finished runs that can be replayed, if any). `executor`: run the days on it instead of SUMO in
+    this process (left open); `task_overrides`: task config values set directly (tests)."""
     return _run_policy(make_baseline(req.model), lambda task: baseline_names(req.model, task.training_eps),
-                       req.model, req, day_fn, task_overrides, human_phase_candidates)
+                       req.model, req, executor, task_overrides, human_phase_candidates)
 
 
 @with_run_log
-def run_policy(policy: CavPolicy, req: BaselineRequest | None = None, *, day_fn: DayFn | None = None,
+def run_policy(policy: CavPolicy, req: BaselineRequest | None = None, *, executor: DayExecutor | None = None,
                task_overrides: dict[str, Any] | None = None) -> RunResult:
     """URB's experiment in SUMO with any `CavPolicy` (e.g. `algorithms.baselines.FixedPolicy` around
     a policy trained outside urb-jax), in results/<exp_id>/ with the metric files of every run;
@@ -73,12 +70,12 @@ def run_policy(policy: CavPolicy, req: BaselineRequest | None = None, *, day_fn:
     (or replays it, `req.human_phase_from`) and the test days only."""
     labels = {"alg_config": "outside", "algorithm": policy.name,
               "script": "urb_jax.runs.baseline.run_policy"}
-    return _run_policy(policy, lambda _task: labels, policy.name, req or BaselineRequest(), day_fn,
+    return _run_policy(policy, lambda _task: labels, policy.name, req or BaselineRequest(), executor,
                        task_overrides)
 
 
 def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, Any]], id_prefix: str,
-                req: BaselineRequest, day_fn: DayFn | None, task_overrides: dict[str, Any] | None,
+                req: BaselineRequest, executor: DayExecutor | None, task_overrides: dict[str, Any] | None,
                 human_phase_candidates: Sequence[str] = ()) -> RunResult:
     """Every day in SUMO with `policy`; `labels_of(task)`: what exp_config.json calls the policy; the
     default id is `id_prefix`_<network>_<task>_s<env seed>."""
@@ -108,7 +105,7 @@ def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, A
     log_run_to(folder)
     write_config(folder, config)
     with stops_cleanly([folder], resumable=False):
-        return _run_baseline_days(folder, config, scn, task, env, policy, req.env_seed, day_fn, results_dir,
+        return _run_baseline_days(folder, config, scn, task, env, policy, req.env_seed, executor, results_dir,
                                   human_phase_from, req.progress, t0)
 
 
@@ -134,18 +131,22 @@ def _baseline_configs(req: BaselineRequest, task_overrides: dict[str, Any] | Non
 
 
 def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task: TaskConfig,
-                       env: EnvConfig, policy: CavPolicy, env_seed: int, day_fn: DayFn | None,
+                       env: EnvConfig, policy: CavPolicy, env_seed: int, executor: DayExecutor | None,
                        results_dir: Path, human_phase_from: str | None, progress: bool,
                        t0: float) -> RunResult:
     writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
-    if day_fn is None:  # SUMO's warnings go to the run's sumo.log, not the terminal
-        day_fn = functools.partial(run_day, log_file=folder / "sumo.log")
-    memo = MemoExecutor(_DayFnExecutor(day_fn))  # a repeated day (AON CAVs, frozen humans) runs once
-    day_fn = _one_day(memo)
+    # SUMO's warnings go to the run's sumo.log, not the terminal
+    inner = InProcessExecutor(log_file=folder / "sumo.log") if executor is None else executor
+    memo = MemoExecutor(inner)  # a repeated day (AON CAVs, frozen humans) runs once
     H, T = task.human_learning_episodes, task.training_eps
-    if human_phase_from:
-        day_fn = load_replay(results_dir / human_phase_from, config, scn.agent_id, H, day_fn)
-    run_experiment(scn, task, env, policy, env_seed=env_seed, day_fn=day_fn, sink=writer, progress=progress)
+    days: DayExecutor = load_replay(results_dir / human_phase_from, config, scn.agent_id, H, memo
+                                    ) if human_phase_from else memo
+    try:
+        run_experiment(scn, task, env, policy, env_seed=env_seed, executor=days, sink=writer,
+                       progress=progress)
+    finally:
+        if executor is None:
+            inner.close()
     writer.close()
     metrics, phases = write_outputs(folder, H, T)
     wall = time.perf_counter() - t0
@@ -153,28 +154,3 @@ def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task
               sumo_days_repeated=memo.reused)
     return RunResult(folder, metrics, wall, days=H + T + task.test_eps,
                      replayed_days=H if human_phase_from else 0)
-
-
-class _DayFnExecutor:
-    """A day function (`DayFn`) as a `DayExecutor`, so the one day cache can sit in front of it."""
-
-    def __init__(self, day_fn: DayFn) -> None:
-        self.day_fn = day_fn
-
-    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
-                 is_cav: np.ndarray | None = None) -> list[DayResult]:
-        masks = [None] * len(choices) if is_cav is None else list(is_cav)
-        return [self.day_fn(scenario, c, seed=int(s), is_cav=m) for c, s, m in zip(choices, seeds, masks,
-                                                                                     strict=True)]
-
-    def close(self) -> None:
-        pass
-
-
-def _one_day(executor: DayExecutor) -> DayFn:
-    """The `DayFn` of one-day batches on `executor`."""
-    def day(scenario: Scenario, choices: np.ndarray, *, seed: int, is_cav: np.ndarray | None = None
-            ) -> DayResult:
-        return executor.run_days(scenario, np.asarray(choices)[None], [seed],
-                                 None if is_cav is None else np.asarray(is_cav)[None])[0]
-    return day

@@ -49,7 +49,7 @@ class SuiteRun:
     """One experiment of a suite: a `TrainRequest(**kwargs)` (kind train, with `seeds`) or a
     `BaselineRequest(**kwargs)` (kind baseline), under `exp_id`. `options`: what a Python caller
     (tests) hands the run besides its request: run_train's executor and stop_after_round,
-    run_baseline's day_fn and task_overrides; a suite file has none."""
+    run_baseline's executor and task_overrides; a suite file has none."""
 
     kind: str
     exp_id: str

@@ -4,11 +4,11 @@ The human phase (H SUMO days, the learned human state, and for the hybrid traine
 days) depends only on the network, routes, env seed, human model and demand, not on the CAV
 policy, so runs on the same network and seed can share it (`--human-phase-from EXP_ID`).
 
-One replay mechanism serves both commands: `ReplayHumanPhase` wraps a day function; its first
-`days` calls return the SUMO days recorded by the earlier run, after checking that today's human
-choices are exactly the recorded ones (so a replay can never silently differ from a fresh
-simulation); later calls go to the wrapped day function.
-* `urb-jax baseline`: `load_replay` puts it in front of SUMO's day function.
+One replay mechanism serves both commands: `ReplayHumanPhase` is a `DayExecutor` around another;
+its first `days` days are the SUMO days recorded by the earlier run, after checking that today's
+human choices are exactly the recorded ones (so a replay can never silently differ from a fresh
+simulation); later days go to the wrapped executor.
+* `urb-jax baseline`: `load_replay` puts it in front of the run's SUMO executor.
 * `urb-jax train`: every train run saves `human_phase.npz` (`save_human_phase`: learned human
   state + calibration days); `reuse_human_phase` replays the recorded human days through
   `train_humans`, checks the replayed human state against the saved one, and takes the
@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
@@ -43,12 +43,13 @@ from urb_jax.game.humans import HumanState
 from urb_jax.reporting.metrics import PRE_WINDOW
 from urb_jax.reporting.records import DayRecord, read_records
 from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, MemoExecutor
+from urb_jax.sumo_bridge.batch import as_batch
 from urb_jax.surrogate import build_static, init_params, predict
 from urb_jax.surrogate.calibrate import FitConfig, Params, SumoSample, fit_with_bias
 from urb_jax.surrogate.data import make_choices
 from urb_jax.surrogate.model import Static
 from urb_jax.training.hybrid.plan import HybridConfig
-from urb_jax.training.protocol import DayFn, train_humans, train_humans_on_model
+from urb_jax.training.protocol import train_humans, train_humans_on_model
 
 HUMAN_FILE = "human_phase.npz"
 JOURNAL_DIR = "human_days.journal"  # in the run's first folder
@@ -104,13 +105,8 @@ def run_human_phase(scn: Scenario, task: TaskConfig, cfg: HybridConfig, executor
         switch, means = train_humans_on_model(scn, hp, S, env_seed=env_seed, travel_times=model)
         bar.update(S, "human/surrogate")
 
-    def simulate(day: int, phase: str, choices: np.ndarray, is_cav: np.ndarray) -> DayResult:
-        res = executor.run_days(scn, choices[None], [env_seed])[0]
-        bar.update(1, f"{phase}/SUMO")
-        return res
-
-    humans = train_humans(scn, hp, H, env_seed=env_seed, simulate=simulate, sink=records.append,
-                          first_day=S + 1, humans=switch)
+    humans = train_humans(scn, hp, H, env_seed=env_seed, executor=executor, bar=bar, bar_label="human/SUMO",
+                          sink=records.append, first_day=S + 1, humans=switch)
     tail = records[-cfg.calib_human_days:] if calibrate and cfg.calib_human_days > 0 else []
     choices = [r.choices for r in tail] + varied
     results = [r.result for r in tail] + varied_results
@@ -183,12 +179,13 @@ def saved_calibration_days(folder: Path) -> SumoSample:
 
 
 class ReplayHumanPhase:
-    """A day function whose first calls are the recorded days `first_day`..`days` of an earlier run."""
+    """A `DayExecutor` whose first days are the recorded days `first_day`..`days` of an earlier run;
+    later days run on `inner` (closed with it)."""
 
-    def __init__(self, records: pd.DataFrame, agent_id: np.ndarray, days: int, day_fn: DayFn,
+    def __init__(self, records: pd.DataFrame, agent_id: np.ndarray, days: int, inner: DayExecutor,
                  first_day: int = 1) -> None:
         self.days = days
-        self.day_fn = day_fn
+        self.inner = inner
         self.calls = first_day - 1
         rec = records[records["day"] <= days]
         have = sorted(rec["day"].unique())
@@ -200,11 +197,24 @@ class ReplayHumanPhase:
         if self._wide["action"].isna().any().any():
             raise UrbJaxError("human phase replay: the source run's agents differ from this scenario's.")
 
-    def __call__(self, scenario: Scenario, choices: np.ndarray, *, seed: int,
-                 is_cav: np.ndarray | None = None) -> DayResult:
+    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
+                 is_cav: np.ndarray | None = None) -> list[DayResult]:
+        batch = as_batch(choices, seeds, is_cav)
+        n_replayed = max(0, min(len(batch.seeds), self.days - self.calls))
+        days = [self._replayed(c, s, m) for c, s, m in zip(batch.choices[:n_replayed], batch.seeds,
+                                                            batch.cavs, strict=False)]
+        if n_replayed < len(batch.seeds):
+            rest = batch.cavs[n_replayed:]
+            masks = None if rest[0] is None else np.stack(cast("list[np.ndarray]", rest))
+            days += self.inner.run_days(scenario, batch.choices[n_replayed:], batch.seeds[n_replayed:], masks)
+            self.calls += len(batch.seeds) - n_replayed
+        return days
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def _replayed(self, choices: np.ndarray, seed: int, is_cav: np.ndarray | None) -> DayResult:
         self.calls += 1
-        if self.calls > self.days:
-            return self.day_fn(scenario, choices, seed=seed, is_cav=is_cav)
         d = self.calls
         if is_cav is not None and np.asarray(is_cav).any():
             raise UrbJaxError(f"human phase replay: day {d} has CAVs.")
@@ -251,18 +261,18 @@ def _checked_source(source: Path, config: dict[str, Any], keys: tuple[str, ...])
     return src
 
 
-def _replay(source: Path, agent_id: np.ndarray, days: int, day_fn: DayFn, first_day: int = 1
+def _replay(source: Path, agent_id: np.ndarray, days: int, inner: DayExecutor, first_day: int = 1
             ) -> ReplayHumanPhase:
-    return ReplayHumanPhase(read_records(source, columns=["day", "agent", *FIELDS]), agent_id, days, day_fn,
+    return ReplayHumanPhase(read_records(source, columns=["day", "agent", *FIELDS]), agent_id, days, inner,
                             first_day)
 
 
 def load_replay(source: Path, config: dict[str, Any], agent_id: np.ndarray, days: int,
-                day_fn: DayFn) -> ReplayHumanPhase:
-    """`day_fn` behind a replay of `source`'s first `days` days, after checking it ran the same
+                inner: DayExecutor) -> ReplayHumanPhase:
+    """`inner` behind a replay of `source`'s first `days` days, after checking it ran the same
     human phase (`urb-jax baseline --human-phase-from`)."""
     check_replayable(source, config, days)
-    return _replay(source, agent_id, days, day_fn)
+    return _replay(source, agent_id, days, inner)
 
 
 def check_replayable(source: Path, config: dict[str, Any], days: int) -> None:
@@ -290,14 +300,10 @@ def reuse_human_phase(source: Path, config: dict[str, Any], scn: Scenario, task:
     calib = _calibration_days(z, path, cfg, calibrate)
     S = int(src.get(SURROGATE_KEY, 0))
     switch = _saved_humans(z, "switch") if S else None
-    replay = _replay(source, scn.agent_id, task.human_learning_episodes, _no_more_days, first_day=S + 1)
+    replay = _replay(source, scn.agent_id, task.human_learning_episodes, _NoMoreDays(), first_day=S + 1)
     records: list[DayRecord] = []
-
-    def simulate(day: int, phase: str, choices: np.ndarray, is_cav: np.ndarray) -> DayResult:
-        return replay(scn, choices, seed=env_seed, is_cav=None)
-
     humans = train_humans(scn, task.human_params(), task.human_learning_episodes, env_seed=env_seed,
-                          simulate=simulate, sink=records.append, first_day=S + 1, humans=switch)
+                          executor=replay, sink=records.append, first_day=S + 1, humans=switch)
     saved = _saved_humans(z, "humans")
     same = jax.tree_util.tree_map(lambda a, b: bool(np.array_equal(np.asarray(a), np.asarray(b),
                                                                    equal_nan=True)), humans, saved)
@@ -324,6 +330,12 @@ def _calibration_days(z: np.lib.npyio.NpzFile, path: Path, cfg: HybridConfig, ca
     return calib if calibrate else (calib[0][:0], calib[1][:0], calib[2][:0])
 
 
-def _no_more_days(scenario: Scenario, choices: np.ndarray, *, seed: int,
-                  is_cav: np.ndarray | None = None) -> DayResult:
-    raise UrbJaxError("human phase replay: asked for more days than the source's human phase.")
+class _NoMoreDays:
+    """The executor behind a train run's replay: the source's human phase has every day it needs."""
+
+    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
+                 is_cav: np.ndarray | None = None) -> list[DayResult]:
+        raise UrbJaxError("human phase replay: asked for more days than the source's human phase.")
+
+    def close(self) -> None:
+        pass

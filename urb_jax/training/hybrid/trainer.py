@@ -39,7 +39,7 @@ from urb_jax.surrogate.model import Static
 from urb_jax.training.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
 from urb_jax.training.human_phase import HumanPhase, calibrate
 from urb_jax.training.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
-from urb_jax.training.hybrid.fns import Runner, TrainerFns, build_fns, maps_seeds
+from urb_jax.training.hybrid.fns import ActFn, Runner, TrainerFns, build_fns, maps_seeds
 from urb_jax.training.hybrid.memory import check_fits
 from urb_jax.training.hybrid.plan import (
     AlgoConfig,
@@ -340,18 +340,12 @@ class HybridTrainer:
         S x P days go to the executor as one batch; adapting humans: the population lives the P
         days in order, S days (one per seed) at a time."""
         g, s = self.g, self.state
-        n, R = g.scn.n_agents, g.R
+        R = g.R
         keys_act, keys_step = g.fns.split_p(k_act), g.fns.split_p(k_step)  # [S, P, 2]
         real, parts = s.real, []
-        choices: jax.Array | np.ndarray  # the jitted act's, then numpy (np.asarray)
         for c in range(0, g.P, R):
-            obs, actions, choices = g.fns.act_explore(s.runner, keys_act[:, c:c + R], real)
-            choices = np.asarray(choices)  # [S, R, N]
-            results = self.executor.run_days(g.scn, choices.reshape(g.S * R, n), [g.env_seed] * (g.S * R),
-                                             is_cav=g.is_cav)
-            times = np.stack([res.travel_time for res in results]).astype(np.float32).reshape(g.S, R, n)
-            real, days = g.fns.sumo_step(keys_step[:, c:c + R], real, obs, actions, jnp.asarray(times),
-                                         s.params)
+            choices, results, times, real, days = self.sumo_days(
+                g.fns.act_explore, keys_act[:, c:c + R], keys_step[:, c:c + R], real, R, self.executor)
             parts.append((choices, results, times, days))
         choices = np.concatenate([p[0] for p in parts], axis=1)
         results = [res for i in range(g.S) for p in parts for res in p[1][i * R:(i + 1) * R]]
@@ -364,6 +358,25 @@ class HybridTrainer:
                 losses.append(np.asarray(m["loss"]).reshape(g.S, -1).mean(1))
         self.state = s._replace(runner=runner, real=real)
         return choices, results, times, days, np.mean(losses, axis=0) if losses else None
+
+    def sumo_days(self, act: ActFn, k_act: jax.Array, k_step: jax.Array, real: EnvState, b: int,
+                  executor: DayExecutor) -> tuple[np.ndarray, list[DayResult], np.ndarray, EnvState, Day]:
+        """The one SUMO leg of training and test days: the policies act (`act`, exploring or greedy)
+        on keys [S, r, 2]; the first b <= r days of every seed run on `executor` as one batch of
+        S x b; the real days step on SUMO's times (days past b repeat the first: their humans are
+        frozen). Returns (choices [S, b, N], results [S * b] seed-major, times [S, r, N], real, days)."""
+        g, s = self.g, self.state
+        n, r = g.scn.n_agents, k_act.shape[1]
+        choices: jax.Array | np.ndarray  # the jitted act's, then numpy (np.asarray)
+        obs, actions, choices = act(s.runner, k_act, real)
+        choices = np.asarray(choices)[:, :b]  # [S, b, N]
+        results = executor.run_days(g.scn, choices.reshape(g.S * b, n), [g.env_seed] * (g.S * b),
+                                    is_cav=g.is_cav)
+        times = np.zeros((g.S, r, n), np.float32)
+        times[:, :b] = np.stack([res.travel_time for res in results]).reshape(g.S, b, n)
+        times[:, b:] = times[:, :1]
+        real, days = g.fns.sumo_step(k_step, real, obs, actions, jnp.asarray(times), s.params)
+        return choices, results, times, real, days
 
     def refit(self, r: int) -> None:
         """Each seed refits its surrogate on `refit_days` of its SUMO days (a fixed-size sample drawn
@@ -403,18 +416,11 @@ class HybridTrainer:
     def test_days(self, start_day: int, executor: DayExecutor) -> np.ndarray:
         """Test days start_day + 1 .. + b (b <= R) of every seed; returns their choices [S, b, N]."""
         g, s = self.g, self.state
-        n, b = g.scn.n_agents, min(g.R, g.E - start_day)
+        b = min(g.R, g.E - start_day)
         kt = jax.vmap(lambda k, d=start_day: jax.random.split(jax.random.fold_in(k, d)))(g.keys.test)
-        choices: jax.Array | np.ndarray  # the jitted act's, then numpy (np.asarray)
-        obs, actions, choices = g.fns.act_greedy(s.runner, g.fns.split_p(kt[:, 0])[:, :g.R], s.real)
-        choices = np.asarray(choices)[:, :b]  # [S, b, N]
-        results = executor.run_days(g.scn, choices.reshape(g.S * b, n), [g.env_seed] * (g.S * b),
-                                    is_cav=g.is_cav)
-        times = np.zeros((g.S, g.R, n), np.float32)
-        times[:, :b] = np.stack([res.travel_time for res in results]).reshape(g.S, b, n)
-        times[:, b:] = times[:, :1]
-        real, days = g.fns.sumo_step(g.fns.split_p(kt[:, 1])[:, :g.R], s.real, obs, actions,
-                                     jnp.asarray(times), s.params)
+        choices, results, times, real, days = self.sumo_days(
+            g.fns.act_greedy, g.fns.split_p(kt[:, 0])[:, :g.R], g.fns.split_p(kt[:, 1])[:, :g.R], s.real, b,
+            executor)
         self.state = s._replace(real=real)
         for i in range(g.S):
             days_i = jax.tree_util.tree_map(lambda x, b=b, i=i: x[i, :, :b], days)
