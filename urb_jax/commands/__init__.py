@@ -16,5 +16,6 @@ COMMANDS = [
     "urb_jax.commands.metrics",
     "urb_jax.commands.train",
     "urb_jax.commands.optimum",
+    "urb_jax.commands.snapshots",
     "urb_jax.commands.suite",
 ]

@@ -65,9 +65,8 @@ class RoundMeta:
 
 def latest_checkpoint(folder: Path) -> tuple[int, Path] | None:
     """(rounds done, dir) of the newest complete checkpoint (meta.json is written last)."""
-    root = folder / CKPT_DIR
-    done = sorted(int(p.name.split("_")[1]) for p in root.glob("round_*") if (p / "meta.json").is_file())
-    return (done[-1], root / f"round_{done[-1]:05d}") if done else None
+    done = kept_checkpoints(folder)
+    return (done[-1], folder / CKPT_DIR / f"round_{done[-1]:05d}") if done else None
 
 
 def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: RoundMeta,
@@ -102,13 +101,26 @@ def _check_space(d: Path, nbytes: int) -> None:
                       f"{need / 2**20:.1f} MiB, {free / 2**20:.1f} MiB are free", str(d))
 
 
-def restore_round(folder: Path, target: Any, seeds: Sequence[int]
+def kept_checkpoints(folder: Path) -> list[int]:
+    """The rounds done of every complete checkpoint in `folder` (a group's first), ascending: the
+    newest and those `hybrid.keep_checkpoints_at` kept."""
+    root = folder / CKPT_DIR
+    return sorted(int(p.name.split("_")[1]) for p in root.glob("round_*") if (p / "meta.json").is_file())
+
+
+def restore_round(folder: Path, target: Any, seeds: Sequence[int], rounds_done: int | None = None
                   ) -> tuple[Any, list[SumoSample], RoundMeta]:
-    """The newest complete checkpoint in `folder`: (state shaped like `target`, each seed's SUMO
-    days, meta); raises RuntimeError if there is none or it holds other seeds."""
-    found = latest_checkpoint(folder)
+    """The complete checkpoint in `folder` after `rounds_done` rounds (None: the newest): (state
+    shaped like `target`, each seed's SUMO days, meta); raises RuntimeError if there is none or it
+    holds other seeds."""
+    if rounds_done is None:
+        found = latest_checkpoint(folder)
+    else:
+        kept = rounds_done in kept_checkpoints(folder)
+        found = (rounds_done, folder / CKPT_DIR / f"round_{rounds_done:05d}") if kept else None
     if found is None:
-        raise RuntimeError(f"{folder}: no checkpoint to resume from")
+        raise RuntimeError(f"{folder}: no checkpoint to resume from" if rounds_done is None else
+                           f"{folder}: no complete checkpoint after round {rounds_done}")
     rounds_done, ckpt = found
     meta = json.loads((ckpt / "meta.json").read_text())
     if meta.get("seeds", seeds) != list(seeds):

@@ -238,14 +238,19 @@ class HybridTrainer:
 
     def resume(self) -> int:
         """The group's newest checkpoint; every seed's record parts written after it are dropped."""
-        shapes = jax.eval_shape(self.fresh_state)._asdict()  # no fresh state beside the restored one
-        state, self.samples, meta = restore_round(self.g.folders[0], shapes, self.g.seeds)
-        self.state = TrainState(**state)
-        self.rounds_logs, self.sumo_done = meta.rounds, meta.sumo_days
+        meta = self.restore()
         for writer, parts in zip(self.writers, meta.record_parts, strict=True):
             writer.truncate(parts)
-        self.set_params()
         return meta.rounds_done
+
+    def restore(self, rounds_done: int | None = None) -> RoundMeta:
+        """The group's state from its checkpoint after `rounds_done` rounds (None: the newest)."""
+        shapes = jax.eval_shape(self.fresh_state)._asdict()  # no fresh state beside the restored one
+        state, self.samples, meta = restore_round(self.g.folders[0], shapes, self.g.seeds, rounds_done)
+        self.state = TrainState(**state)
+        self.rounds_logs, self.sumo_done = meta.rounds, meta.sumo_days
+        self.set_params()
+        return meta
 
     def checkpoint(self, rounds_done: int) -> None:
         g = self.g
@@ -486,6 +491,19 @@ def train_group(
     for writer in writers:
         writer.close()
     return trainer.summaries(aon)
+
+
+def checkpoint_test_phase(g: Group, rounds_done: int, executor: DayExecutor, writers: list[RecordsWriter],
+                    progress: bool = False) -> tuple[RoundMeta, dict[str, float]]:
+    """The test phase of the group's policies as its checkpoint after `rounds_done` rounds left them
+    (a learning-curve snapshot): the run's own test days and keys, recorded to `writers` (one per
+    seed); returns (the checkpoint's meta, the AON day on the same humans)."""
+    bar = Progress(g.S * g.E, progress)
+    trainer = HybridTrainer(g, executor, writers, bar, lambda: 0.0)
+    meta = trainer.restore(rounds_done)
+    aon = trainer.test()
+    bar.close()
+    return meta, aon
 
 
 def aon_same_humans(scn: Scenario, choices: np.ndarray, is_cav: np.ndarray, executor: DayExecutor,
