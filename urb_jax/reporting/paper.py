@@ -1,11 +1,14 @@
 """The URB paper's tables next to ours (docs/paper.md).
 
-The paper's numbers are data, `configs/paper/urb_paper.json`: per catalogue entry, its tables (one
-per network, a row per algorithm, the paper's columns), each with the address it was read at, or
-"not found" and what was searched. Every row carries claims, comparisons that hold on the paper's
-own numbers ("t_CAV > t_pre": the CAVs stayed slower than as humans; "t_CAV > aon.t_CAV": slower
-than the same table's AON row). Ours are the entry's finished runs, aggregated over seeds as the
-leaderboard does, in both trip measures (SUMO's trip duration, the published tables' measure, and
+The paper's numbers are data, `configs/paper/urb_paper.json`, typed by hand from the paper's LaTeX
+source: per catalogue entry, its tables (one per network, a row per algorithm, the paper's columns
+with the stds it prints), each naming the table label it was read from (`tab:kpis`, ...); URB's
+README table, an older 3-run version, rides along as a second, labelled source. Every row carries
+claims, the paper's conclusions as comparisons that hold on its own numbers, each with the label or
+section that states it ("t_CAV > t_pre": the CAVs stayed slower than as humans; "t_CAV >
+aon.t_CAV": slower than the same table's AON row; "WR > 0": some run beat the humans). Text claims
+that cannot be judged here are listed with why. Ours are the entry's finished runs, aggregated over
+seeds as the leaderboard does, in both trip measures (SUMO's trip duration, the published tables' measure, and
 URB's current travel time; docs/metrics.md), and each claim is recomputed on them. Where ours
 contradict a claim, the entry's `why_not` says why, with its evidence, or the page says that the
 reason is not established yet.
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,11 +44,13 @@ COLUMNS = {"t_pre": ("t_pre_duration", "t_pre"), "t_test": ("t_test_duration", "
            "t_CAV": ("t_CAV_duration", "t_CAV"), "t_HDV_post": ("t_HDV_test_duration", "t_HDV_test"),
            "c_all": ("cost_of_learning",) * 2, "c_HDV": ("cost_of_learning_humans",) * 2,
            "c_CAV": ("cost_of_learning_CAVs",) * 2, "delta_V": ("delta_V",) * 2,
-           "delta_L": ("delta_L",) * 2, "WR": ("WR",) * 2}
+           "delta_L": ("delta_L",) * 2, "WR": ("WR",) * 2,
+           "delta_pct": ("delta_pct_duration", "delta_pct")}
 HEADS = {"t_pre": "t_pre", "t_test": "t_test", "t_CAV": "t_CAV", "t_HDV_post": "t_HDV^post", "c_all": "c_all",
-         "c_HDV": "c_HDV", "c_CAV": "c_CAV", "delta_V": "ΔV", "delta_L": "ΔL", "WR": "WR %"}
+         "c_HDV": "c_HDV", "c_CAV": "c_CAV", "delta_V": "ΔV", "delta_L": "ΔL", "WR": "WR %",
+         "delta_pct": "Δ%t_pre"}
 METRICS = list(dict.fromkeys([*SHOWN, *(m for pair in COLUMNS.values() for m in pair if m != "WR")]))
-OPS = {"<": lambda a, b: a < b, ">": lambda a, b: a > b}
+OPS = {"<": lambda a, b: a < b, ">": lambda a, b: a > b, "≈": lambda a, b: a == b}
 NAMES = {"iql": "IQL", "ippo": "IPPO", "mappo": "MAPPO", "qmix": "QMIX", "vdn": "VDN", "iql_star": "IQL*",
          "ippo_star": "IPPO*", "human": "Human", "aon": "AON", "random": "Random"}
 
@@ -54,8 +60,9 @@ def paper_file() -> Path:
 
 
 def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
-    """The paper's numbers, checked: every table has a source address and a caption, every column
-    is one of COLUMNS, every claim is well formed and holds on the paper's own numbers."""
+    """The paper's numbers, checked: every table has a source (a label of the paper, or an address
+    for the README's tables) and a caption, every column is one of COLUMNS, every claim is well
+    formed, names its source and holds on the paper's own numbers where the paper prints them."""
     path = Path(path) if path else paper_file()
     try:
         data = json.loads(path.read_text())
@@ -64,15 +71,18 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
                           "Fix: restore the file.") from None
     for entry, e in data.get("entries", {}).items():
         where = f"{path}: entries.{entry}"
-        if e.get("status") == "not found":
+        if e.get("status") in ("not found", "figure only"):
             if e.get("tables") or not e.get("notes"):
-                raise ConfigError(f"{where}: 'not found' has no tables and says why in 'notes'. "
+                raise ConfigError(f"{where}: '{e.get('status')}' has no tables and says why in 'notes'. "
                                   "Fix: write it so.")
+            _check_text_claims(e, where)
             continue
         if e.get("status") != "found" or not e.get("tables"):
-            raise ConfigError(f"{where}: status is 'found' (with tables) or 'not found'. Fix: set it.")
+            raise ConfigError(f"{where}: status is 'found' (with tables), 'figure only' or 'not found'. "
+                              "Fix: set it.")
         for i, t in enumerate(e["tables"]):
             _check_table(t, f"{where}.tables[{i}]")
+        _check_text_claims(e, where)
         claims = {key for t in e["tables"] for alg, row in t["rows"].items()
                   for c in row.get("claims", []) for key in (claim_text(c), f"{alg}: {claim_text(c)}")}
         unknown = sorted(set(e.get("why_not", {})) - claims)
@@ -83,37 +93,72 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
     return data
 
 
+def _is_source(text: Any) -> bool:
+    """A label of the paper (tab:..., sec:..., fig:...) or an address."""
+    return isinstance(text, str) and bool(re.match(r"(tab|sec|fig):|https://", text))
+
+
+def _check_text_claims(e: dict[str, Any], where: str) -> None:
+    for i, c in enumerate(e.get("claims", [])):
+        if not c.get("text") or not _is_source(c.get("source")) or not c.get("why"):
+            raise ConfigError(f"{where}.claims[{i}]: a text claim needs 'text', a 'source' (a label of the "
+                              "paper) and 'why' it cannot be judged here. Fix: add them.")
+
+
 def _check_table(t: dict[str, Any], where: str) -> None:
-    if not str(t.get("source", "")).startswith("https://") or not t.get("caption") or not t.get("network"):
-        raise ConfigError(f"{where}: a table needs 'network', 'caption' and a 'source' address. "
-                          "Fix: add them.")
+    if not _is_source(t.get("source")) or not t.get("caption") or not t.get("network"):
+        raise ConfigError(f"{where}: a table needs 'network', 'caption' and a 'source' (a label of the "
+                          "paper: tab:..., sec:...; or an address). Fix: add them.")
+    readme = t.get("readme")
+    if readme is not None and not str(readme.get("source", "")).startswith("https://"):
+        raise ConfigError(f"{where}.readme: needs the 'source' address it was read at. Fix: add it.")
     for alg, row in t.get("rows", {}).items():
-        bad = set(row["values"]) - set(COLUMNS)
-        if bad:
-            raise ConfigError(f"{where}.rows.{alg}: columns {sorted(bad)}. Fix: use some of {list(COLUMNS)}.")
+        bad = (set(row["values"]) | set(row.get("sd", {}))) - set(COLUMNS)
+        if bad or set(row.get("sd", {})) - set(row["values"]):
+            raise ConfigError(f"{where}.rows.{alg}: columns {sorted(bad)} (or an sd without its value). "
+                              f"Fix: use some of {list(COLUMNS)}.")
         for claim in row.get("claims", []):
-            held = _evaluate(claim, alg, lambda key, col: t["rows"].get(key, {}).get("values", {}).get(col))
-            if held is None or not held[0]:
-                raise ConfigError(f"{where}.rows.{alg}: claim {claim} does not hold on the paper's own "
-                                  "numbers. Fix: state what the paper's numbers show.")
+            if not _is_source(claim.get("source")):
+                raise ConfigError(f"{where}.rows.{alg}: claim {claim.get('claim')} has no 'source' (a label "
+                                  "of the paper). Fix: add it.")
+            held = _evaluate(claim["claim"], alg,
+                             lambda key, col: t["rows"].get(key, {}).get("values", {}).get(col))
+            if held is not None and not held[0]:
+                raise ConfigError(f"{where}.rows.{alg}: claim {claim['claim']} does not hold on the paper's "
+                                  "own numbers. Fix: state what the paper's numbers show.")
 
 
-def _operand(term: str, row: str) -> tuple[str, str]:
-    """'t_pre' -> (row, 't_pre'); 'aon.t_CAV' -> ('aon', 't_CAV')."""
+def _operand(term: str | float, row: str) -> tuple[str, str]:
+    """'t_pre' -> (row, 't_pre'); 'aon.t_CAV' -> ('aon', 't_CAV'); a number -> ('', '')."""
+    if not isinstance(term, str):
+        return "", ""
     key, _, col = term.rpartition(".")
     return (key or row), col
 
 
-def _evaluate(claim: list[str], row: str, value) -> tuple[bool, float, float] | None:
-    """(holds, left, right) of a claim [left, op, right] on `value(row_key, column)`; None where a
-    value is missing."""
-    left, op, right = claim
-    if op not in OPS or _operand(left, row)[1] not in COLUMNS or _operand(right, row)[1] not in COLUMNS:
-        raise ConfigError(f"claim {claim}: use [column, '<' or '>', column or 'row.column'] with columns "
-                          f"of {list(COLUMNS)}. Fix: rewrite it.")
-    a, b = value(*_operand(left, row)), value(*_operand(right, row))
+def claim_parts(claim: list[Any]) -> tuple[str, str, str | float, float]:
+    """[left, op, right] or [left, '≈', right, relative margin] -> (left, op, right, margin)."""
+    ok = len(claim) in (3, 4) and claim[1] in OPS and isinstance(claim[0], str)
+    ok = ok and (len(claim) == 4) == (claim[1] == "≈")
+    ok = ok and (claim[0] != "WR" or (claim[1] != "≈" and isinstance(claim[2], int | float)))
+    terms = [claim[0]] + ([claim[2]] if ok and isinstance(claim[2], str) else [])
+    if not ok or any(_operand(x, "")[1] not in COLUMNS for x in terms):
+        raise ConfigError(f"claim {claim}: use [column, '<' or '>', column, 'row.column' or a number], "
+                          f"[column, '≈', column or 'row.column', relative margin] or ['WR', '<' or '>', "
+                          f"percent], with columns of {list(COLUMNS)}. Fix: rewrite it.")
+    return claim[0], claim[1], claim[2], float(claim[3]) if len(claim) == 4 else 0.0
+
+
+def _evaluate(claim: list[Any], row: str, value) -> tuple[bool, float, float] | None:
+    """(holds, left, right) of a claim on `value(row_key, column)` point values; None where a value
+    is missing."""
+    left, op, right, margin = claim_parts(claim)
+    a = value(*_operand(left, row))
+    b = right if not isinstance(right, str) else value(*_operand(right, row))
     if a is None or b is None or a != a or b != b:  # missing or NaN
         return None
+    if op == "≈":
+        return abs(a - b) <= margin * abs(b) + 1e-12, float(a), float(b)
     return OPS[op](a, b), float(a), float(b)
 
 
@@ -148,10 +193,11 @@ def _cell(row: pd.Series, column: str, measure: int) -> str:
     return f"{mean:.4f}" + (f" ± {std:.4f}" if row["runs"] > 1 and std == std else "")
 
 
-def claim_text(claim: list[str]) -> str:
+def claim_text(claim: dict[str, Any] | list[Any]) -> str:
     """A claim as urb_paper.json's `why_not` keys it: 't_CAV > aon.t_CAV' (every row's), or
     prefixed by a row, 'qmix: t_CAV < t_pre' (that row's)."""
-    return " ".join(claim)
+    parts = claim["claim"] if isinstance(claim, dict) else claim
+    return " ".join(f"{x:g}" if isinstance(x, float) else str(x) for x in parts[:3])
 
 
 def _our_verdicts(claim: list[str], alg: str,
@@ -168,12 +214,12 @@ def claim_fails(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> bool:
 
 def claim_line(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> str:
     """'t_CAV > t_pre: holds in SUMO duration (3.3512 > 3.1585), does not hold in travel time (...)'."""
-    left, op, right = claim
+    left, op, right, _ = claim_parts(claim)
     label = f"{_term(left, alg)} {op} {_term(right, alg)}"
     parts = []
     for name, res in zip(MEASURES, _our_verdicts(claim, alg, ours), strict=True):
         if res is None:
-            missing = [k for k in {_operand(left, alg)[0], _operand(right, alg)[0]} if k not in ours]
+            missing = [k for k in {_operand(left, alg)[0], _operand(right, alg)[0]} - {""} if k not in ours]
             parts.append(f"not run yet ({', '.join(NAMES.get(k, k) for k in sorted(missing))})" if missing
                          else f"n/a in {name}")
             continue
@@ -185,13 +231,15 @@ def claim_line(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> str:
     return f"{label}: " + "; ".join(parts)
 
 
-def _term(term: str, row: str) -> str:
+def _term(term: str | float, row: str) -> str:
+    if not isinstance(term, str):
+        return f"{term:g}"
     key, col = _operand(term, row)
     return HEADS[col] if key == row else f"{NAMES.get(key, key)} {HEADS[col]}"
 
 
 def _not(op: str) -> str:
-    return {"<": "≥", ">": "≤"}[op]
+    return {"<": "≥", ">": "≤", "≈": "≉"}[op]
 
 
 @dataclass(frozen=True)
@@ -229,7 +277,7 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
                 f"{', '.join(f'`{n}`' for n in sorted(res.partial['exp_id']))}.", ""]
     runs = res.runs
     if paper.get("status") != "found":
-        out += [f"**The paper's numbers: not found.** {paper.get('notes', '')}", ""]
+        out += [f"**The paper's numbers: {paper.get('status', 'not found')}.** {paper.get('notes', '')}", ""]
         if not runs.empty:
             out += ["Ours (mean ± std over seeds):", "", runs_tables(runs)]
     else:
@@ -291,8 +339,8 @@ def _conclusion(alg: str, row: dict[str, Any], ours: dict[str, pd.Series], why_n
             f"{v:.4f} in {name}" for v, name in zip(pre, MEASURES, strict=True) if v is not None) + "."
     if alg not in ours:
         return f"{head}: not run yet."
-    line = f"{head}: " + "; ".join(claim_line(c, alg, ours) for c in row["claims"]) + "."
-    failed = [claim_text(c) for c in row["claims"] if claim_fails(c, alg, ours)]
+    line = f"{head}: " + "; ".join(claim_line(c["claim"], alg, ours) for c in row["claims"]) + "."
+    failed = [claim_text(c) for c in row["claims"] if claim_fails(c["claim"], alg, ours)]
     whys = dict.fromkeys(why_not.get(f"{alg}: {c}", why_not.get(c, "not established yet.")) for c in failed)
     return line + "".join(f" *Why ours differ:* {why}" for why in whys)
 
