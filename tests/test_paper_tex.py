@@ -185,3 +185,39 @@ def test_the_demand_table_matches_the_networks_agents(real_networks_dir):
             agents = list(csv.DictReader(f))
         assert (len(agents), len({(a["origin"], a["destination"]) for a in agents})) == (
             r["trips"], r["od_pairs"]), r["network"]
+
+
+def test_the_contradictions_the_page_lists_are_in_the_paper(tex):
+    """Each item of the data file's `contradictions`, checked on the transcribed numbers (themselves
+    checked against the .tex above) and on the captions it quotes."""
+    data = load_paper_numbers()
+    assert len(data["contradictions"]) == 4
+    kpis = {t["network"]: t["rows"] for t in data["entries"]["scenario1"]["tables"]}
+    readme = {t["network"]: t["readme"]["values"] for t in data["entries"]["scenario1"]["tables"]}
+    # tab:new_imp's IQL/IPPO rows are tab:kpis' (6,000 days), its caption says 2,000
+    for t in data["entries"]["adjusted_iql_ippo"]["tables"]:
+        for alg in ("iql", "ippo"):
+            row, old = t["rows"][alg], kpis[t["network"]][alg]
+            for col in ("t_CAV", "c_CAV"):
+                assert (row["values"][col], row["sd"][col]) == (old["values"][col], old["sd"][col])
+    assert "CAV learning (2~000 episodes)" in _table(tex, "tab:new_imp")
+    assert "200, 6~000, and 100 episodes" in tex  # fig:travel_times_1: Scenario 1's training length
+    # tab:sensitivity_kpis' IQL (Original) is tab:kpis' IQL; its caption says 1,200 episodes
+    sens = load_paper_numbers()["entries"]["sensitivity_demand_half"]["tables"][0]["rows"]
+    assert sens["iql_original"]["values"]["t_CAV"] == kpis["saint_arnoult"]["iql"]["values"]["t_CAV"] == 3.53
+    mappo = (kpis["saint_arnoult"]["mappo"]["values"]["t_CAV"], readme["saint_arnoult"]["mappo"]["t_CAV"])
+    assert sens["mappo_original"]["values"]["t_CAV"] not in mappo
+    assert "after 1~200 training episodes" in _table(tex, "tab:sensitivity_kpis")
+    # c_all outside [c_HDV, c_CAV]: AON on Ingolstadt only; c_all is defined as the mean over all agents
+    outside = [(n, a) for n, rows in kpis.items() for a, r in rows.items()
+               if {"c_all", "c_HDV", "c_CAV"} <= set(r["values"])
+               and not min(r["values"]["c_HDV"], r["values"]["c_CAV"]) <= r["values"]["c_all"]
+               <= max(r["values"]["c_HDV"], r["values"]["c_CAV"])]
+    assert outside == [("ingolstadt_custom", "aon")]
+    assert "/ (|\\mathcal{N}|\\cdot|\\mathcal{S}_\\text{train}|)" in tex
+    # humans 'disadvantaged', but Ingolstadt IPPO and MAPPO t_HDV = t_pre
+    equal = [a for a, r in kpis["ingolstadt_custom"].items()
+             if r["values"].get("t_HDV_post") == 4.21 and a != "human"]
+    assert equal == ["ippo", "mappo"] and "human agents" in _table(tex, "tab:kpis")
+    # no VDN row in Scenario 1 (the demonstrative experiments are VDN's only appearance)
+    assert "VDN" not in _table(tex, "tab:kpis") and all("vdn" not in r for r in kpis.values())

@@ -69,6 +69,10 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
     except (OSError, json.JSONDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read the paper's numbers ({exc}). "
                           "Fix: restore the file.") from None
+    for i, c in enumerate(data.get("contradictions", [])):
+        if not c.get("what") or not c.get("sources") or not all(_is_source(x) for x in c["sources"]):
+            raise ConfigError(f"{path}: contradictions[{i}]: needs 'what' and 'sources' (labels of the "
+                              "paper). Fix: add them.")
     for entry, e in data.get("entries", {}).items():
         where = f"{path}: entries.{entry}"
         if e.get("status") in ("not found", "figure only"):
@@ -578,7 +582,18 @@ def paper_markdown(results: list[EntryResults], paper: dict[str, Any], header: s
         extra.append(_compute_markdown(paper["compute"]))
     if "demand" in paper:
         extra.append(_demand_markdown(paper["demand"]))
-    return "\n".join([header, summary_markdown(judged), *body, *extra])
+    return "\n".join([header, summary_markdown(judged), _contradictions_markdown(paper), *body, *extra])
+
+
+def _contradictions_markdown(paper: dict[str, Any]) -> str:
+    items = paper.get("contradictions", [])
+    if not items:
+        return ""
+    out = ["## Where the paper contradicts itself", "",
+           "Checked against the paper's LaTeX source (tests/test_paper_tex.py); each with the labels it "
+           "rests on:", ""]
+    out += [f"- {c['what']} [{', '.join(c['sources'])}]" for c in items]
+    return "\n".join([*out, ""])
 
 
 # ---- the ledger: the runs the page has shown, wherever they ran
