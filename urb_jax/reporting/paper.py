@@ -1,11 +1,14 @@
 """The URB paper's tables next to ours (docs/paper.md).
 
-The paper's numbers are data, `configs/paper/urb_paper.json`: per catalogue entry, its tables (one
-per network, a row per algorithm, the paper's columns), each with the address it was read at, or
-"not found" and what was searched. Every row carries claims, comparisons that hold on the paper's
-own numbers ("t_CAV > t_pre": the CAVs stayed slower than as humans; "t_CAV > aon.t_CAV": slower
-than the same table's AON row). Ours are the entry's finished runs, aggregated over seeds as the
-leaderboard does, in both trip measures (SUMO's trip duration, the published tables' measure, and
+The paper's numbers are data, `configs/paper/urb_paper.json`, typed by hand from the paper's LaTeX
+source: per catalogue entry, its tables (one per network, a row per algorithm, the paper's columns
+with the stds it prints), each naming the table label it was read from (`tab:kpis`, ...); URB's
+README table, an older 3-run version, rides along as a second, labelled source. Every row carries
+claims, the paper's conclusions as comparisons that hold on its own numbers, each with the label or
+section that states it ("t_CAV > t_pre": the CAVs stayed slower than as humans; "t_CAV >
+aon.t_CAV": slower than the same table's AON row; "WR > 0": some run beat the humans). Text claims
+that cannot be judged here are listed with why. Ours are the entry's finished runs, aggregated over
+seeds as the leaderboard does, in both trip measures (SUMO's trip duration, the published tables' measure, and
 URB's current travel time; docs/metrics.md), and each claim is recomputed on them. Where ours
 contradict a claim, the entry's `why_not` says why, with its evidence, or the page says that the
 reason is not established yet.
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,7 +33,7 @@ import pandas as pd
 
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.errors import ConfigError
-from urb_jax.reporting.leaderboard import SHOWN, aggregate
+from urb_jax.reporting import verdicts as V  # noqa: N812
 from urb_jax.reporting.suite_report import runs_tables
 
 PAPER_FILE = ("paper", "urb_paper.json")
@@ -40,13 +44,15 @@ COLUMNS = {"t_pre": ("t_pre_duration", "t_pre"), "t_test": ("t_test_duration", "
            "t_CAV": ("t_CAV_duration", "t_CAV"), "t_HDV_post": ("t_HDV_test_duration", "t_HDV_test"),
            "c_all": ("cost_of_learning",) * 2, "c_HDV": ("cost_of_learning_humans",) * 2,
            "c_CAV": ("cost_of_learning_CAVs",) * 2, "delta_V": ("delta_V",) * 2,
-           "delta_L": ("delta_L",) * 2, "WR": ("WR",) * 2}
+           "delta_L": ("delta_L",) * 2, "WR": ("WR",) * 2,
+           "delta_pct": ("delta_pct_duration", "delta_pct")}
 HEADS = {"t_pre": "t_pre", "t_test": "t_test", "t_CAV": "t_CAV", "t_HDV_post": "t_HDV^post", "c_all": "c_all",
-         "c_HDV": "c_HDV", "c_CAV": "c_CAV", "delta_V": "ΔV", "delta_L": "ΔL", "WR": "WR %"}
-METRICS = list(dict.fromkeys([*SHOWN, *(m for pair in COLUMNS.values() for m in pair if m != "WR")]))
-OPS = {"<": lambda a, b: a < b, ">": lambda a, b: a > b}
+         "c_HDV": "c_HDV", "c_CAV": "c_CAV", "delta_V": "ΔV", "delta_L": "ΔL", "WR": "WR %",
+         "delta_pct": "Δ%t_pre"}
+OPS = {"<": lambda a, b: a < b, ">": lambda a, b: a > b, "≈": lambda a, b: a == b}
 NAMES = {"iql": "IQL", "ippo": "IPPO", "mappo": "MAPPO", "qmix": "QMIX", "vdn": "VDN", "iql_star": "IQL*",
-         "ippo_star": "IPPO*", "human": "Human", "aon": "AON", "random": "Random"}
+         "ippo_star": "IPPO*", "human": "Human", "aon": "AON", "random": "Random",
+         "iql_original": "IQL (Original)", "mappo_original": "MAPPO (Original)"}
 
 
 def paper_file() -> Path:
@@ -54,25 +60,33 @@ def paper_file() -> Path:
 
 
 def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
-    """The paper's numbers, checked: every table has a source address and a caption, every column
-    is one of COLUMNS, every claim is well formed and holds on the paper's own numbers."""
+    """The paper's numbers, checked: every table has a source (a label of the paper, or an address
+    for the README's tables) and a caption, every column is one of COLUMNS, every claim is well
+    formed, names its source and holds on the paper's own numbers where the paper prints them."""
     path = Path(path) if path else paper_file()
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read the paper's numbers ({exc}). "
                           "Fix: restore the file.") from None
+    for i, c in enumerate(data.get("contradictions", [])):
+        if not c.get("what") or not c.get("sources") or not all(_is_source(x) for x in c["sources"]):
+            raise ConfigError(f"{path}: contradictions[{i}]: needs 'what' and 'sources' (labels of the "
+                              "paper). Fix: add them.")
     for entry, e in data.get("entries", {}).items():
         where = f"{path}: entries.{entry}"
-        if e.get("status") == "not found":
+        if e.get("status") in ("not found", "figure only"):
             if e.get("tables") or not e.get("notes"):
-                raise ConfigError(f"{where}: 'not found' has no tables and says why in 'notes'. "
+                raise ConfigError(f"{where}: '{e.get('status')}' has no tables and says why in 'notes'. "
                                   "Fix: write it so.")
+            _check_text_claims(e, where)
             continue
         if e.get("status") != "found" or not e.get("tables"):
-            raise ConfigError(f"{where}: status is 'found' (with tables) or 'not found'. Fix: set it.")
+            raise ConfigError(f"{where}: status is 'found' (with tables), 'figure only' or 'not found'. "
+                              "Fix: set it.")
         for i, t in enumerate(e["tables"]):
             _check_table(t, f"{where}.tables[{i}]")
+        _check_text_claims(e, where)
         claims = {key for t in e["tables"] for alg, row in t["rows"].items()
                   for c in row.get("claims", []) for key in (claim_text(c), f"{alg}: {claim_text(c)}")}
         unknown = sorted(set(e.get("why_not", {})) - claims)
@@ -83,37 +97,72 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
     return data
 
 
+def _is_source(text: Any) -> bool:
+    """A label of the paper (tab:..., sec:..., fig:...) or an address."""
+    return isinstance(text, str) and bool(re.match(r"(tab|sec|fig):|https://", text))
+
+
+def _check_text_claims(e: dict[str, Any], where: str) -> None:
+    for i, c in enumerate(e.get("claims", [])):
+        if not c.get("text") or not _is_source(c.get("source")) or not c.get("why"):
+            raise ConfigError(f"{where}.claims[{i}]: a text claim needs 'text', a 'source' (a label of the "
+                              "paper) and 'why' it cannot be judged here. Fix: add them.")
+
+
 def _check_table(t: dict[str, Any], where: str) -> None:
-    if not str(t.get("source", "")).startswith("https://") or not t.get("caption") or not t.get("network"):
-        raise ConfigError(f"{where}: a table needs 'network', 'caption' and a 'source' address. "
-                          "Fix: add them.")
+    if not _is_source(t.get("source")) or not t.get("caption") or not t.get("network"):
+        raise ConfigError(f"{where}: a table needs 'network', 'caption' and a 'source' (a label of the "
+                          "paper: tab:..., sec:...; or an address). Fix: add them.")
+    readme = t.get("readme")
+    if readme is not None and not str(readme.get("source", "")).startswith("https://"):
+        raise ConfigError(f"{where}.readme: needs the 'source' address it was read at. Fix: add it.")
     for alg, row in t.get("rows", {}).items():
-        bad = set(row["values"]) - set(COLUMNS)
-        if bad:
-            raise ConfigError(f"{where}.rows.{alg}: columns {sorted(bad)}. Fix: use some of {list(COLUMNS)}.")
+        bad = (set(row["values"]) | set(row.get("sd", {}))) - set(COLUMNS)
+        if bad or set(row.get("sd", {})) - set(row["values"]):
+            raise ConfigError(f"{where}.rows.{alg}: columns {sorted(bad)} (or an sd without its value). "
+                              f"Fix: use some of {list(COLUMNS)}.")
         for claim in row.get("claims", []):
-            held = _evaluate(claim, alg, lambda key, col: t["rows"].get(key, {}).get("values", {}).get(col))
-            if held is None or not held[0]:
-                raise ConfigError(f"{where}.rows.{alg}: claim {claim} does not hold on the paper's own "
-                                  "numbers. Fix: state what the paper's numbers show.")
+            if not _is_source(claim.get("source")):
+                raise ConfigError(f"{where}.rows.{alg}: claim {claim.get('claim')} has no 'source' (a label "
+                                  "of the paper). Fix: add it.")
+            held = _evaluate(claim["claim"], alg,
+                             lambda key, col: t["rows"].get(key, {}).get("values", {}).get(col))
+            if held is not None and not held[0]:
+                raise ConfigError(f"{where}.rows.{alg}: claim {claim['claim']} does not hold on the paper's "
+                                  "own numbers. Fix: state what the paper's numbers show.")
 
 
-def _operand(term: str, row: str) -> tuple[str, str]:
-    """'t_pre' -> (row, 't_pre'); 'aon.t_CAV' -> ('aon', 't_CAV')."""
+def _operand(term: str | float, row: str) -> tuple[str, str]:
+    """'t_pre' -> (row, 't_pre'); 'aon.t_CAV' -> ('aon', 't_CAV'); a number -> ('', '')."""
+    if not isinstance(term, str):
+        return "", ""
     key, _, col = term.rpartition(".")
     return (key or row), col
 
 
-def _evaluate(claim: list[str], row: str, value) -> tuple[bool, float, float] | None:
-    """(holds, left, right) of a claim [left, op, right] on `value(row_key, column)`; None where a
-    value is missing."""
-    left, op, right = claim
-    if op not in OPS or _operand(left, row)[1] not in COLUMNS or _operand(right, row)[1] not in COLUMNS:
-        raise ConfigError(f"claim {claim}: use [column, '<' or '>', column or 'row.column'] with columns "
-                          f"of {list(COLUMNS)}. Fix: rewrite it.")
-    a, b = value(*_operand(left, row)), value(*_operand(right, row))
+def claim_parts(claim: list[Any]) -> tuple[str, str, str | float, float]:
+    """[left, op, right] or [left, '≈', right, relative margin] -> (left, op, right, margin)."""
+    ok = len(claim) in (3, 4) and claim[1] in OPS and isinstance(claim[0], str)
+    ok = ok and (len(claim) == 4) == (claim[1] == "≈")
+    ok = ok and (claim[0] != "WR" or (claim[1] != "≈" and isinstance(claim[2], int | float)))
+    terms = [claim[0]] + ([claim[2]] if ok and isinstance(claim[2], str) else [])
+    if not ok or any(_operand(x, "")[1] not in COLUMNS for x in terms):
+        raise ConfigError(f"claim {claim}: use [column, '<' or '>', column, 'row.column' or a number], "
+                          f"[column, '≈', column or 'row.column', relative margin] or ['WR', '<' or '>', "
+                          f"percent], with columns of {list(COLUMNS)}. Fix: rewrite it.")
+    return claim[0], claim[1], claim[2], float(claim[3]) if len(claim) == 4 else 0.0
+
+
+def _evaluate(claim: list[Any], row: str, value) -> tuple[bool, float, float] | None:
+    """(holds, left, right) of a claim on `value(row_key, column)` point values; None where a value
+    is missing."""
+    left, op, right, margin = claim_parts(claim)
+    a = value(*_operand(left, row))
+    b = right if not isinstance(right, str) else value(*_operand(right, row))
     if a is None or b is None or a != a or b != b:  # missing or NaN
         return None
+    if op == "≈":
+        return abs(a - b) <= margin * abs(b) + 1e-12, float(a), float(b)
     return OPS[op](a, b), float(a), float(b)
 
 
@@ -122,83 +171,125 @@ def row_key(alg: str) -> str:
     return alg.removeprefix("baseline_")
 
 
-def our_rows(ours: pd.DataFrame, network: str) -> dict[str, pd.Series]:
-    """Our aggregated rows (`aggregate`'s mean, std over seeds) on one network, by paper-table key."""
-    if ours.empty:
+# ---- our per-seed values
+
+Seeds = dict[str, pd.DataFrame]  # paper-table key -> that row's per-seed runs on one network
+
+
+def our_seeds(runs: pd.DataFrame, network: str) -> Seeds:
+    """Our per-seed rows on one network, by paper-table key (seeds sorted by run id)."""
+    if runs.empty or "network" not in runs:
         return {}
-    table = ours[ours["network"] == network]
-    return {row_key(str(r["alg"] or r["algorithm"])): r for _, r in table.iterrows()}
+    table = runs[runs["network"] == network]
+    keys = [row_key(str(a or b)) for a, b in zip(table.get("alg", table["algorithm"]), table["algorithm"],
+                                                 strict=True)]
+    return {k: g.sort_values("exp_id") for k, g in table.assign(_key=keys).groupby("_key", sort=False)}
 
 
-def our_value(row: pd.Series | None, column: str, measure: int) -> float | None:
-    if row is None:
+def seed_values(rows: pd.DataFrame, column: str, measure: int) -> list[float] | None:
+    """One value per seed of a paper column in a measure (MEASURES' order); WR: 1 where the seed's
+    CAVs beat its t_pre, else 0; None where any seed lacks it (not recorded)."""
+    def col(name: str) -> pd.Series:
+        if name not in rows:
+            return pd.Series([math.nan] * len(rows))
+        return pd.to_numeric(rows[name], errors="coerce").reset_index(drop=True)
+
+    if column == "WR":
+        if measure == 1 and "winrate" in rows:
+            vals = col("winrate")
+        else:
+            vals = (col(COLUMNS["t_CAV"][measure]) < col(COLUMNS["t_pre"][measure])).astype(float)
+            vals[col(COLUMNS["t_CAV"][measure]).isna()] = math.nan
+    elif column == "delta_pct":
+        pre, cav = col(COLUMNS["t_pre"][measure]), col(COLUMNS["t_CAV"][measure])
+        vals = (pre - cav) / pre * 100.0
+    else:
+        vals = col(COLUMNS[column][measure])
+    return None if vals.isna().any() or vals.empty else [float(v) for v in vals]
+
+
+# ---- verdicts on the paper's claims and cells
+
+NOT_COMPARED = {"c_all", "c_HDV", "c_CAV"}  # the published costs follow neither URB's code nor ours
+WHY_COST = "the published costs follow a definition unlike ours (docs/metrics.md): only their sign is judged"
+
+
+@dataclass(frozen=True)
+class Judged:
+    """One claim of the paper, judged in both measures (the first, SUMO duration, is the paper's)."""
+
+    entry: str
+    network: str
+    row: str
+    text: str
+    source: str
+    verdicts: tuple[V.Verdict, ...]
+    why: str = ""  # the entry's explanation, where ours do not confirm it
+
+
+def _missing_row(key: str, ours: Seeds, paper: dict[str, Any]) -> V.Verdict | None:
+    if key in ours:
         return None
-    metric = COLUMNS[column][measure]
-    value = row.get("WR" if metric == "WR" else f"{metric}_mean")
-    return None if value is None or value != value else float(value)
+    why = paper.get("not_comparable", {}).get(key)
+    return V.not_comparable(why or f"not run yet ({NAMES.get(key, key)})")
 
 
-def _cell(row: pd.Series, column: str, measure: int) -> str:
-    metric = COLUMNS[column][measure]
-    if metric == "WR":
-        return "n/a" if row.get("WR") != row.get("WR") else f"{row['WR']:.0f}"
-    mean, std = row.get(f"{metric}_mean", math.nan), row.get(f"{metric}_std", math.nan)
-    if mean != mean:
-        return "n/a"
-    return f"{mean:.4f}" + (f" ± {std:.4f}" if row["runs"] > 1 and std == std else "")
+def judge_claim(claim: list[Any], row: str, ours: Seeds, paper: dict[str, Any], measure: int) -> V.Verdict:
+    """A claim of row `row` on our per-seed values in one measure."""
+    left, op, right, margin = claim_parts(claim)
+    lkey, lcol = _operand(left, row)
+    for key in [lkey] + ([_operand(right, row)[0]] if isinstance(right, str) else []):
+        missing = _missing_row(key, ours, paper)
+        if missing:
+            return missing
+    lvals = seed_values(ours[lkey], lcol, measure)
+    if lvals is None:
+        return V.not_comparable("per-seed values not recorded")
+    if lcol == "WR":
+        return V.win_rate(round(sum(lvals)), len(lvals), op, float(right))
+    if not isinstance(right, str):
+        diff = V.welch(V.Sample.of(lvals), V.Sample(float(right), 0.0, 1))
+        return V.direction(diff, op)
+    rkey, rcol = _operand(right, row)
+    rvals = seed_values(ours[rkey], rcol, measure)
+    if rvals is None:
+        return V.not_comparable("per-seed values not recorded")
+    same = rkey == lkey and len(rvals) == len(lvals)
+    diff = V.paired(lvals, rvals) if same else V.welch(V.Sample.of(lvals), V.Sample.of(rvals))
+    if op == "≈":
+        return V.equivalence(diff, margin * abs(sum(rvals) / len(rvals)))
+    return V.direction(diff, op)
 
 
-def claim_text(claim: list[str]) -> str:
-    """A claim as urb_paper.json's `why_not` keys it: 't_CAV > aon.t_CAV' (every row's), or
-    prefixed by a row, 'qmix: t_CAV < t_pre' (that row's)."""
-    return " ".join(claim)
+def judge_cell(table: dict[str, Any], row: str, column: str, ours: Seeds) -> V.Verdict:
+    """Our value of one paper cell against the paper's mean/std/n (SUMO duration, its measure)."""
+    prow = table["rows"][row]
+    if column in NOT_COMPARED:
+        return V.not_comparable(WHY_COST)
+    key = next(iter(ours), None) if row == "human" else row  # t_pre: any run's humans
+    if key is None or key not in ours:
+        return V.not_comparable("not run")
+    vals = seed_values(ours[key], column, 0)
+    if vals is None:
+        return V.not_comparable("per-seed values not recorded")
+    runs = prow.get("runs", table.get("runs")) if "runs" in prow else table.get("runs")
+    value = prow["values"][column]
+    if column == "WR":
+        if not runs:
+            return V.not_comparable("the paper's number of runs is not stated")
+        return V.win_rates_agree(round(sum(vals)), len(vals), round(value * runs / 100), runs)
+    sd = prow.get("sd", {}).get(column)
+    paper = V.Sample(value, sd or 0.0, runs if sd is not None and runs else 1, rounding=0.005)
+    return V.value_agrees(V.Sample.of(vals), paper)
 
 
-def _our_verdicts(claim: list[str], alg: str,
-                  ours: dict[str, pd.Series]) -> list[tuple[bool, float, float] | None]:
-    """The claim evaluated on ours, one `_evaluate` result per trip measure (MEASURES' order)."""
-    return [_evaluate(claim, alg, lambda key, col, m=m: our_value(ours.get(key), col, m))
-            for m in range(len(MEASURES))]
-
-
-def claim_fails(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> bool:
-    """Ours contradict the claim in at least one trip measure."""
-    return any(res is not None and not res[0] for res in _our_verdicts(claim, alg, ours))
-
-
-def claim_line(claim: list[str], alg: str, ours: dict[str, pd.Series]) -> str:
-    """'t_CAV > t_pre: holds in SUMO duration (3.3512 > 3.1585), does not hold in travel time (...)'."""
-    left, op, right = claim
-    label = f"{_term(left, alg)} {op} {_term(right, alg)}"
-    parts = []
-    for name, res in zip(MEASURES, _our_verdicts(claim, alg, ours), strict=True):
-        if res is None:
-            missing = [k for k in {_operand(left, alg)[0], _operand(right, alg)[0]} if k not in ours]
-            parts.append(f"not run yet ({', '.join(NAMES.get(k, k) for k in sorted(missing))})" if missing
-                         else f"n/a in {name}")
-            continue
-        holds, a, b = res
-        verdict, sign = ("holds", op) if holds else ("**does not hold**", _not(op))
-        parts.append(f"{verdict} in {name} ({a:.4f} {sign} {b:.4f})")
-    if parts[0] == parts[1]:  # e.g. 'not run yet' twice
-        parts = parts[:1]
-    return f"{label}: " + "; ".join(parts)
-
-
-def _term(term: str, row: str) -> str:
-    key, col = _operand(term, row)
-    return HEADS[col] if key == row else f"{NAMES.get(key, key)} {HEADS[col]}"
-
-
-def _not(op: str) -> str:
-    return {"<": "≥", ">": "≤"}[op]
-
+# ---- the page
 
 @dataclass(frozen=True)
 class EntryResults:
     """One catalogue entry as far as it has run: its finished runs (`collect_folders` rows, here or
-    from the ledger), how many runs it has and how many finished, the seeds each train run plans,
-    and links to the suite's figures."""
+    from the ledger, one per seed), how many runs it has and how many finished, the seeds each train
+    run plans, and links to the suite's figures."""
 
     entry: str
     title: str
@@ -213,13 +304,86 @@ class EntryResults:
     partial: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
-def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
-    """An entry's section: the paper's tables with ours under each row, a conclusion line per row."""
+SHORT = {V.HOLDS: "equal", V.FAILS: "differs", V.TIE: "tie", V.NOT_COMPARABLE: "·"}
+
+
+def _entry_seeds(res: EntryResults, paper: dict[str, Any], network: str,
+                 all_runs: dict[str, pd.DataFrame]) -> Seeds:
+    seeds = our_seeds(res.runs, network)
+    for key, other in paper.get("rows_from", {}).items():  # rows the paper took from another table
+        theirs = our_seeds(all_runs.get(other, pd.DataFrame()), network)
+        if key in theirs:
+            seeds[key] = theirs[key]
+    return seeds
+
+
+def judge_entry(res: EntryResults, paper: dict[str, Any], all_runs: dict[str, pd.DataFrame]) -> list[Judged]:
+    """Every claim of an entry's rows and text, judged on our runs. Where ours contradict a claim,
+    the entry's `why_not` says why (its row's key, else the claim's), or 'not established yet'; a
+    tie shows its row's own explanation only."""
+    out = []
+    why_not = paper.get("why_not", {})
+    for table in paper.get("tables", []):
+        ours = _entry_seeds(res, paper, table["network"], all_runs)
+        for alg, row in table["rows"].items():
+            for c in row.get("claims", []):
+                verdicts = tuple(judge_claim(c["claim"], alg, ours, paper, m) for m in range(len(MEASURES)))
+                text, kind = claim_text(c), verdicts[0].kind
+                why = ""
+                if kind == V.FAILS:
+                    why = why_not.get(f"{alg}: {text}", why_not.get(text, "not established yet."))
+                elif kind == V.TIE:
+                    why = why_not.get(f"{alg}: {text}", "")
+                label = _claim_label(c["claim"], alg)
+                out.append(Judged(res.entry, table["network"], alg, label, c["source"], verdicts, why))
+    for c in paper.get("claims", []):
+        out.append(Judged(res.entry, "", "", f"\"{c['text']}\"", c["source"], (V.not_comparable(c["why"]),)))
+    return out
+
+
+def claim_text(claim: dict[str, Any] | list[Any]) -> str:
+    """A claim as urb_paper.json's `why_not` keys it: 't_CAV > aon.t_CAV' (every row's), or
+    prefixed by a row, 'qmix: t_CAV < t_pre' (that row's)."""
+    parts = claim["claim"] if isinstance(claim, dict) else claim
+    return " ".join(f"{x:g}" if isinstance(x, float) else str(x) for x in parts[:3])
+
+
+def _claim_label(claim: list[Any], row: str) -> str:
+    left, op, right, margin = claim_parts(claim)
+    if left == "WR":
+        return f"WR {op} {right:g}%"
+    label = f"{_term(left, row)} {op} {_term(right, row)}"
+    return label + (f" (within {100 * margin:g}%)" if op == "≈" else "")
+
+
+def _term(term: str | float, row: str) -> str:
+    if not isinstance(term, str):
+        return f"{term:g}"
+    key, col = _operand(term, row)
+    return HEADS[col] if key == row else f"{NAMES.get(key, key)} {HEADS[col]}"
+
+
+def _judged_line(j: Judged, shown: set[str]) -> str:
+    """A claim's line; an explanation already given for the row is referred to, not repeated."""
+    first = j.verdicts[0]
+    line = f"{j.text} [{j.source}]: **{first.kind}** ({first.detail})"
+    if len(j.verdicts) > 1 and j.verdicts[1].kind != first.kind:
+        line += f"; in travel time {j.verdicts[1]}"
+    if not j.why:
+        return line
+    if j.why in shown:
+        return line + " *Why ours differ:* as above."
+    shown.add(j.why)
+    return line + f" *Why ours differ:* {j.why}"
+
+
+def entry_markdown(res: EntryResults, paper: dict[str, Any], all_runs: dict[str, pd.DataFrame]) -> str:
+    """An entry's section: the paper's tables with ours under each row, every claim judged."""
     out = [f"## `{res.entry}`: {res.title}", ""]
     state = ("not run yet" if not res.runs_done else
              f"{res.runs_done} of {res.runs_planned} runs finished")
     out.append(f"Ours: {state}; {res.seeds_planned} seed(s) per train run planned. "
-               f"Paper: {paper.get('paper_seeds', 'seeds not stated in what was found')}.")
+               f"Paper: {paper.get('paper_seeds', 'seeds not stated')}.")
     out.append("")
     if res.missing and res.runs_done:
         out += [f"Not finished yet: {', '.join(f'`{m}`' for m in res.missing)} "
@@ -227,29 +391,62 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any]) -> str:
     if not res.partial.empty:
         out += [f"Seeds finished of runs not finished yet (kept in the ledger, shown once their run is): "
                 f"{', '.join(f'`{n}`' for n in sorted(res.partial['exp_id']))}.", ""]
-    runs = res.runs
     if paper.get("status") != "found":
-        out += [f"**The paper's numbers: not found.** {paper.get('notes', '')}", ""]
-        if not runs.empty:
-            out += ["Ours (mean ± std over seeds):", "", runs_tables(runs)]
+        out += [f"**The paper's numbers: {paper.get('status', 'not found')}.** {paper.get('notes', '')}", ""]
+        if not res.runs.empty:
+            out += ["Ours (mean ± std over seeds):", "", runs_tables(res.runs)]
     else:
         out += [f"The paper concludes: {paper['conclusion']}. Measure: {paper['measure']}.", ""]
         if paper.get("notes"):
             out += [f"Note: {paper['notes']}", ""]
-        ours = aggregate(runs, METRICS) if not runs.empty else pd.DataFrame()
+        judged = judge_entry(res, paper, all_runs)
         for table in paper["tables"]:
-            out += _table_markdown(table, our_rows(ours, table["network"]), paper.get("why_not", {}))
+            ours = _entry_seeds(res, paper, table["network"], all_runs)
+            out += _table_markdown(table, ours, [j for j in judged if j.network == table["network"]], paper)
+    text = [c for c in paper.get("claims", [])]
+    if text:
+        out += ["Claims of the paper not judged here:", ""]
+        out += [f"- \"{c['text']}\" [{c['source']}]: not comparable ({c['why']})." for c in text] + [""]
     if res.figures:
         out += ["Figures (travel times over days per group, phases as patches; written by the suite):", ""]
         out += [f"![{Path(f).stem}]({f})" for f in res.figures] + [""]
     return "\n".join(out)
 
 
-def _table_markdown(table: dict[str, Any], ours: dict[str, pd.Series], why_not: dict[str, str]) -> list[str]:
-    cols = list(COLUMNS)
+def _columns(table: dict[str, Any]) -> list[str]:
+    present = {c for r in table["rows"].values() for c in r["values"]}
+    return [c for c in COLUMNS if c in present] or ["t_pre", "t_CAV", "WR"]
+
+
+def _paper_cell(row: dict[str, Any], col: str) -> str:
+    v = row["values"].get(col)
+    if v is None:
+        return ""
+    sd = row.get("sd", {}).get(col)
+    return _paper_num(v) + (f" ({sd:g})" if sd is not None else "")
+
+
+def _our_cell(rows: pd.DataFrame, col: str, measure: int) -> str:
+    vals = seed_values(rows, col, measure)
+    if vals is None:
+        return "n/a"
+    if col == "WR":
+        return f"{100 * sum(vals) / len(vals):.0f} ({round(sum(vals))}/{len(vals)})"
+    s = V.Sample.of(vals)
+    return f"{s.mean:.4f}" + (f" ± {s.sd:.4f}" if s.n > 1 else "")
+
+
+def _table_markdown(table: dict[str, Any], ours: Seeds, judged: list[Judged],
+                    paper: dict[str, Any]) -> list[str]:
+    cols = _columns(table)
     out = [f"### {table['name']} (`{table['network']}`)", "",
-           f"Paper: \"{table['caption']}\", [source]({table['source']})"
-           + "".join(f", [also]({u})" for u in table.get("also_at", [])) + ".", ""]
+           f"Paper: \"{table['caption']}\" [{table['source']}]."]
+    readme = table.get("readme")
+    if readme:
+        also = "".join(f", [also]({u})" for u in readme.get("also_at", []))
+        out[-1] += (f" README: URB's GitHub README table ({readme['runs']} runs), "
+                    f"[source]({readme['source']}){also}, shown where it differs.")
+    out.append("")
     head = ["algorithm", "numbers", "runs", *(HEADS[c] for c in cols)]
     out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     extra = [k for k in ours if k not in table["rows"]]
@@ -257,56 +454,146 @@ def _table_markdown(table: dict[str, Any], ours: dict[str, pd.Series], why_not: 
         name = NAMES.get(alg, alg)
         row = table["rows"].get(alg)
         if row is not None:
-            vals = row["values"]
-            out.append("| " + " | ".join([f"**{name}**", "paper", str(table.get("runs", "?")),
-                                          *(_paper_num(vals.get(c)) for c in cols)]) + " |")
+            runs = row.get("runs", table.get("runs")) if "runs" in row else table.get("runs")
+            numbers = f"paper [{table['source']}]" + ("" if row["values"] else ": no numbers")
+            out.append("| " + " | ".join([f"**{name}**", numbers,
+                                          str(runs or "not stated"),
+                                          *(_paper_cell(row, c) for c in cols)]) + " |")
             name = ""
-        if alg == "human":
-            continue  # the human row is t_pre itself; ours is in the conclusions
-        r = ours.get(alg)
+            old = readme["values"].get(alg, {}) if readme else {}
+            differ = [c in old and c in row["values"] and old[c] != row["values"][c] for c in cols]
+            if readme and any(differ):
+                out.append("| " + " | ".join(["", "README", str(readme["runs"]), *(
+                    _paper_num(old[c]) if d else "" for c, d in zip(cols, differ, strict=True))]) + " |")
+        key = next(iter(ours), None) if alg == "human" else alg
+        r = ours.get(key) if key else None
         if r is None:
-            out.append("| " + " | ".join([name, "ours", "", "not run yet", *[""] * (len(cols) - 1)]) + " |")
+            why = "not comparable (see below)" if alg in paper.get("not_comparable", {}) else "not run yet"
+            out.append("| " + " | ".join([name, "ours", "", why,
+                                          *[""] * (len(cols) - 1)]) + " |")
             continue
+        mine = ["t_pre"] if alg == "human" else cols  # the human row is t_pre itself
         for m, measure in enumerate(MEASURES):
-            out.append("| " + " | ".join([name, f"ours, {measure}", str(int(r["runs"])),
-                                          *(_cell(r, c, m) for c in cols)]) + " |")
+            out.append("| " + " | ".join([name, f"ours, {measure}", str(len(r)), *(
+                _our_cell(r, c, m) if c in mine else "" for c in cols)]) + " |")
             name = ""
-    out += ["", "Does the paper's conclusion hold here?", ""]
+        if row is not None and row["values"]:
+            cells = [SHORT[judge_cell(table, alg, c, ours).kind] if c in row["values"] and c in mine else ""
+                     for c in cols]
+            out.append("| " + " | ".join(["", "ours vs paper", "", *cells]) + " |")
+    out += ["", "The paper's conclusions, judged on ours (SUMO duration; travel time where it differs):", ""]
     for alg, row in table["rows"].items():
-        out.append(_conclusion(alg, row, ours, why_not))
+        claims = [j for j in judged if j.row == alg]
+        if not claims:
+            continue
+        out.append(f"- **{NAMES.get(alg, alg)}** (paper: {row['conclusion']}):")
+        shown: set[str] = set()
+        out += [f"  - {_judged_line(j, shown)}" for j in claims]
     for alg in extra:
         out.append(f"- **{NAMES.get(alg, alg)}**: ours only (not in the paper's table).")
     return [*out, ""]
-
-
-def _conclusion(alg: str, row: dict[str, Any], ours: dict[str, pd.Series], why_not: dict[str, str]) -> str:
-    """The row's conclusion line; where ours contradict a claim, why (the entry's `why_not`, or
-    'not established yet': the page says so rather than leave the difference unexplained)."""
-    head = f"- **{NAMES.get(alg, alg)}** (paper: {row['conclusion']})"
-    if alg == "human":
-        pre = [our_value(next(iter(ours.values()), None), "t_pre", m) for m in range(2)]
-        if pre[0] is None and pre[1] is None:
-            return f"{head}: not run yet."
-        return f"{head}: ours t_pre " + ", ".join(
-            f"{v:.4f} in {name}" for v, name in zip(pre, MEASURES, strict=True) if v is not None) + "."
-    if alg not in ours:
-        return f"{head}: not run yet."
-    line = f"{head}: " + "; ".join(claim_line(c, alg, ours) for c in row["claims"]) + "."
-    failed = [claim_text(c) for c in row["claims"] if claim_fails(c, alg, ours)]
-    whys = dict.fromkeys(why_not.get(f"{alg}: {c}", why_not.get(c, "not established yet.")) for c in failed)
-    return line + "".join(f" *Why ours differ:* {why}" for why in whys)
 
 
 def _paper_num(x: float | None) -> str:
     return "" if x is None else f"{x + 0.0:g}"  # + 0.0: the paper's -0.0 prints as 0
 
 
+STATISTICS = """How the claims are judged (urb_jax/reporting/verdicts.py). Ours are per-seed values; their std
+is the sample std (ddof=1). A claim of direction (t_CAV > t_pre) **holds** where a one-sided test
+at 5% (paired for a row against its own t_pre, Welch's t-test against another row, one-sample
+against a number) finds it, **fails** where the same test finds the opposite, and is a **tie**
+where the difference is inside the seed spread. A claim of equality (≈) holds where the 90%
+interval of the difference lies inside its margin (TOST at 5%), fails where the difference is
+significant (two-sided 5%) and not equivalent, and ties otherwise. A win-rate claim (WR > 0) is
+judged by the Clopper-Pearson interval of our wins (one-sided 95% bounds; the page prints the 95%
+interval: 0 of 5 runs gives [0%, 52%]). With one run on each side (the baselines) there is no
+spread: the difference is judged by its value, and the verdict says so. **Not comparable**: the row
+did not run, the entry runs other algorithms than the paper's, or the paper gives no number.
+
+Under each of our rows, "ours vs paper" compares each cell with the paper's (SUMO duration):
+**equal** where Welch's t-test of our seeds against the paper's mean, std and runs puts the 90%
+interval of the difference inside ±1% of the paper's value (at least ±0.01, a unit of its last
+digit; the printed numbers' rounding counts as variance), **differs** where the difference is
+significant (two-sided 5%) and not equal, **tie** otherwise; win rates by Fisher's exact test
+(differs where p < 5%, else tie: five runs cannot show two win rates equal). The paper does not say
+whether its std divides by n or n-1; it is read as the sample std. The cost columns are not
+compared (their published definition is unlike ours; docs/metrics.md)."""
+
+
+def summary_markdown(judged: list[Judged]) -> str:
+    """The page's summary: how many of the paper's conclusions hold, fail, tie, or are not comparable
+    here (SUMO duration, the paper's measure), and why not comparable."""
+    count = {k: sum(j.verdicts[0].kind == k for j in judged) for k in V.VERDICTS}
+    out = ["## Summary: the paper's conclusions, judged here", "",
+           f"Of the paper's {len(judged)} conclusions (claims of its tables and text, each with its "
+           f"source), in SUMO duration (the paper's measure): **{count[V.HOLDS]} hold**, **{count[V.FAILS]} "
+           f"fail**, **{count[V.TIE]} tie** (not significant either way, or not shown equal), "
+           f"**{count[V.NOT_COMPARABLE]} cannot be compared here**.", ""]
+    if count[V.FAILS]:
+        out += ["Where ours contradict the paper:", ""]
+        out += [f"- `{j.entry}` {_where(j)}: {j.text} [{j.source}]"
+                for j in judged if j.verdicts[0].kind == V.FAILS]
+        out.append("")
+    reasons: dict[str, int] = {}
+    for j in judged:
+        if j.verdicts[0].kind == V.NOT_COMPARABLE:
+            reason = f"`{j.entry}`: {j.verdicts[0].detail}"
+            reasons[reason] = reasons.get(reason, 0) + 1
+    if reasons:
+        out += ["Why some cannot be compared:", ""]
+        out += [f"- {reason} ({n})" for reason, n in reasons.items()] + [""]
+    return "\n".join([*out, STATISTICS, ""])
+
+
+def _where(j: Judged) -> str:
+    return f"{j.network} {NAMES.get(j.row, j.row)}".strip()
+
+
+def _compute_markdown(compute: dict[str, Any]) -> str:
+    hw = compute["hardware"]
+    out = ["## What the paper's runs cost", "",
+           f"\"{compute['caption']}\" [{compute['source']}], on {hw['CPU']}, {hw['GPU']}, {hw['RAM']}, "
+           f"SUMO {hw['SUMO version']} [{hw['source']}]. Not comparable with ours (other hardware, and the "
+           "hybrid trainer runs most days on the surrogate).", "",
+           "| network | algorithm | hours |", "|---|---|---|"]
+    out += [f"| {r['network']} | {NAMES.get(r['algorithm'], r['algorithm'])} | {r['hours']:g} |"
+            for r in compute["runs"]]
+    return "\n".join([*out, ""])
+
+
+def _demand_markdown(demand: dict[str, Any]) -> str:
+    ours = [r for r in demand["regions"] if r["network"]]
+    rows = ", ".join(f"{r['region']} {r['trips']} trips / {r['od_pairs']} OD pairs" for r in ours)
+    return "\n".join(["## The networks' demand", "",
+                      f"The paper's demand table [{demand['source']}], for the networks urb-jax ships: "
+                      f"{rows}. "
+                      f"{demand['check']}", ""])
+
+
 def paper_markdown(results: list[EntryResults], paper: dict[str, Any], header: str) -> str:
-    """docs/paper.md: a header, then every catalogue entry's section."""
+    """docs/paper.md: a header, a summary of the verdicts, then every catalogue entry's section."""
     entries = paper["entries"]
     missing = {"status": "not found", "notes": "no entry in the data file."}
-    body = [entry_markdown(r, entries.get(r.entry, missing)) for r in results]
-    return "\n".join([header, *body])
+    all_runs = {r.entry: r.runs for r in results}
+    judged = [j for r in results for j in judge_entry(r, entries.get(r.entry, missing), all_runs)]
+    body = [entry_markdown(r, entries.get(r.entry, missing), all_runs) for r in results]
+    extra = []
+    if "compute" in paper:
+        extra.append(_compute_markdown(paper["compute"]))
+    if "demand" in paper:
+        extra.append(_demand_markdown(paper["demand"]))
+    return "\n".join([header, summary_markdown(judged), _contradictions_markdown(paper), *body, *extra])
+
+
+def _contradictions_markdown(paper: dict[str, Any]) -> str:
+    items = paper.get("contradictions", [])
+    if not items:
+        return ""
+    out = ["## Where the paper contradicts itself", "",
+           "Checked against the paper's LaTeX source (tests/test_paper_tex.py); each with the labels it "
+           "rests on:", ""]
+    out += [f"- {c['what']} [{', '.join(c['sources'])}]" for c in items]
+    return "\n".join([*out, ""])
 
 
 # ---- the ledger: the runs the page has shown, wherever they ran
