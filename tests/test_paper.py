@@ -167,6 +167,34 @@ def test_the_page_puts_ours_beside_the_papers_rows_and_judges_each_conclusion(sc
     assert "`scenario1`: not run yet (QMIX)" in summary
 
 
+def test_the_control_splits_the_gap_into_implementation_and_surrogate(tmp_path):
+    """Paper IQL 3.53 (sd 0.104, 5 runs); ours in SUMO only 3.00, 3.02; ours hybrid 3.01, 3.05 (SUMO
+    duration). Implementation: +0.52, far outside the seed spread; surrogate: -0.02 with a Welch
+    interval over 1.5 df that covers 0, so a tie."""
+    sumo = train_names("iql", "sumo", "default", 6000, "config1")
+    hyb = train_names("iql", "hybrid", "default", 6000, "config1")
+    control = [_run(tmp_path / "c", f"sumo_s1_saint_arnoult_iql_s{s}", sumo, "saint_arnoult", "config1",
+                    t_pre=3.19, t_CAV=d + 0.03, t_pre_duration=3.16, t_CAV_duration=d, winrate=1.0)
+               for s, d in enumerate([3.00, 3.02])]
+    hybrid = [_run(tmp_path / "h", f"s1_saint_arnoult_iql_s{s}", hyb, "saint_arnoult", "config1",
+                   t_pre=3.19, t_CAV=d + 0.03, t_pre_duration=3.16, t_CAV_duration=d, winrate=1.0)
+              for s, d in enumerate([3.01, 3.05])]
+    results = [EntryResults("scenario1", "Scenario 1", collect_folders(hybrid), 21, 1, 5),
+               EntryResults("scenario1_sumo", "control", collect_folders(control), 4, 1, 5)]
+    text = paper_markdown(results, load_paper_numbers(), "# header")
+    split = _section(text, "scenario1_sumo").split("### The gap to the paper")[1].splitlines()
+    row = next(line for line in split if line.startswith("| **IQL** |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[:3] == ["**IQL**", "saint_arnoult", "3.53 (0.104)"]
+    assert cells[3].startswith("3.0100 ± 0.0141 [") and cells[3].endswith("(2)")
+    assert cells[4].startswith("3.0300 ± 0.0283 [")
+    assert cells[5].startswith("+0.5200 [+0.3") and cells[5].endswith("p < 0.001")  # the implementation
+    assert cells[6].startswith("-0.0200 [") and cells[6].endswith("**tie**")  # the surrogate
+    assert cells[7] == cells[8] == "2/2 [16%, 100%]"  # Clopper-Pearson: 0.025 ** (1 / 2)
+    qmix = next(line for line in split if line.startswith("| **QMIX** |"))
+    assert "not run yet" in qmix
+
+
 def _faster_ippo(root: Path) -> list[Path]:
     """IPPO on St. Arnoult faster than its humans in every seed (unlike the paper), and AON."""
     ippo = train_names("ippo", "hybrid", "default", 6000, "config1")

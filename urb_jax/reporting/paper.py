@@ -21,6 +21,7 @@ across machines and sessions instead of forgetting what ran before.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import re
@@ -74,6 +75,8 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
             raise ConfigError(f"{path}: contradictions[{i}]: needs 'what' and 'sources' (labels of the "
                               "paper). Fix: add them.")
     for entry, e in data.get("entries", {}).items():
+        _copy_tables(data, entry, e, path)
+    for entry, e in data.get("entries", {}).items():
         where = f"{path}: entries.{entry}"
         if e.get("status") in ("not found", "figure only"):
             if e.get("tables") or not e.get("notes"):
@@ -95,6 +98,20 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
                               f"Fix: key each explanation by a claim ('t_CAV > t_pre') or a row's claim "
                               f"('qmix: t_CAV < t_pre'), one of {sorted(claims)}.")
     return data
+
+
+def _copy_tables(data: dict[str, Any], entry: str, e: dict[str, Any], path: Path) -> None:
+    """An entry judged against another entry's tables (`tables_from`: {entry, networks}) gets copies
+    of them: the paper's numbers are typed once."""
+    src = e.get("tables_from")
+    if src is None:
+        return
+    other = data.get("entries", {}).get(src.get("entry"), {})
+    tables = [copy.deepcopy(t) for t in other.get("tables", []) if t["network"] in src.get("networks", [])]
+    if e.get("tables") or not tables:
+        raise ConfigError(f"{path}: entries.{entry}.tables_from: names an entry and networks with tables, "
+                          "and the entry has no tables of its own. Fix: correct it.")
+    e["tables"] = tables
 
 
 def _is_source(text: Any) -> bool:
@@ -403,6 +420,8 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any], all_runs: dict[str,
         for table in paper["tables"]:
             ours = _entry_seeds(res, paper, table["network"], all_runs)
             out += _table_markdown(table, ours, [j for j in judged if j.network == table["network"]], paper)
+        if paper.get("decomposes"):
+            out += decomposition_markdown(res, paper, all_runs.get(paper["decomposes"], pd.DataFrame()))
     text = [c for c in paper.get("claims", [])]
     if text:
         out += ["Claims of the paper not judged here:", ""]
@@ -411,6 +430,75 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any], all_runs: dict[str,
         out += ["Figures (travel times over days per group, phases as patches; written by the suite):", ""]
         out += [f"![{Path(f).stem}]({f})" for f in res.figures] + [""]
     return "\n".join(out)
+
+
+DECOMPOSITION = """Per algorithm, in the paper's measure (t_CAV in SUMO trip duration, minutes): the paper's
+mean (its sd, 5 runs), ours trained every training day in SUMO (this entry) and ours hybrid (`{hybrid}`),
+each mean ± sample sd (ddof=1) [95% t-interval] (seeds). Then the two shares of the gap, each a Welch
+difference [95% interval] with its two-sided p: **implementation** = paper − ours in SUMO only (what
+our implementation changes under the paper's own protocol), **surrogate** = ours in SUMO only − ours
+hybrid (what training on the surrogate changes; "tie" where the interval covers 0). WR: runs whose
+CAVs beat their t_pre, with the Clopper-Pearson 95% interval."""
+
+
+def decomposition_markdown(res: EntryResults, paper: dict[str, Any], hybrid_runs: pd.DataFrame) -> list[str]:
+    """The gap between the paper's t_CAV and ours hybrid, split into our implementation's share (the
+    paper against ours in SUMO only) and the surrogate's (ours in SUMO only against ours hybrid)."""
+    out = ["### The gap to the paper, split: implementation and surrogate", "",
+           DECOMPOSITION.format(hybrid=paper["decomposes"]), ""]
+    head = ["algorithm", "network", "paper", "ours, SUMO only", "ours, hybrid", "implementation",
+            "surrogate", "WR SUMO only", "WR hybrid"]
+    out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for table in paper["tables"]:
+        net = table["network"]
+        sumo, hybrid = our_seeds(res.runs, net), our_seeds(hybrid_runs, net)
+        for alg, row in table["rows"].items():
+            if alg in paper.get("rows_from", {}) or "t_CAV" not in row["values"]:
+                continue  # baselines: no training days to decompose
+            out.append("| " + " | ".join([f"**{NAMES.get(alg, alg)}**", net,
+                                          *_decomposition_cells(row, sumo.get(alg), hybrid.get(alg))]) + " |")
+    return [*out, ""]
+
+
+def _decomposition_cells(row: dict[str, Any], sumo: pd.DataFrame | None, hybrid: pd.DataFrame | None
+                         ) -> list[str]:
+    mean, sd = row["values"]["t_CAV"], row.get("sd", {}).get("t_CAV")
+    paper = V.Sample(mean, sd or 0.0, 5 if sd is not None else 1, rounding=0.005)  # printed to 2 decimals
+    sumo_s, hybrid_s = _t_cav(sumo), _t_cav(hybrid)
+    cells = [f"{_paper_num(mean)} ({'sd not printed' if sd is None else f'{sd:g}'})"]
+    cells += [_sample_cell(s) for s in (sumo_s, hybrid_s)]
+    cells.append(_share(V.welch(paper, sumo_s)) if sumo_s else "not run yet")
+    cells.append(_share(V.welch(sumo_s, hybrid_s)) if sumo_s and hybrid_s else "not run yet")
+    cells += [_wins(r) for r in (sumo, hybrid)]
+    return cells
+
+
+def _t_cav(rows: pd.DataFrame | None) -> V.Sample | None:
+    vals = None if rows is None else seed_values(rows, "t_CAV", 0)
+    return V.Sample.of(vals) if vals else None
+
+
+def _sample_cell(s: V.Sample | None) -> str:
+    if s is None:
+        return "not run yet"
+    lo, hi = V.welch(s, V.Sample(0.0, 0.0, 1)).interval(0.95)
+    return f"{s.mean:.4f} ± {s.sd:.4f} [{lo:.4f}, {hi:.4f}] ({s.n})"
+
+
+def _share(d: V.Difference) -> str:
+    lo, hi = d.interval(0.95)
+    tie = " **tie**" if lo <= 0.0 <= hi else ""
+    p = "< 0.001" if d.p_two() < 0.001 else f"= {d.p_two():.3f}"
+    return f"{d.diff:+.4f} [{lo:+.4f}, {hi:+.4f}], p {p}{tie}"
+
+
+def _wins(rows: pd.DataFrame | None) -> str:
+    vals = None if rows is None else seed_values(rows, "WR", 0)
+    if not vals:
+        return "not run yet"
+    k, n = round(sum(vals)), len(vals)
+    lo, hi = V.clopper_pearson(k, n)
+    return f"{k}/{n} [{100 * lo:.0f}%, {100 * hi:.0f}%]"
 
 
 def _columns(table: dict[str, Any]) -> list[str]:
