@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from urb_jax.reporting.metrics import compute_metrics, vector_metrics
+from urb_jax.reporting.metrics import compute_metrics, gini, social_metrics, vector_metrics
 
 # Agents 10, 11 stay HDVs; 12 becomes a CAV on day 3. H = 2 human days, T = 2 training days,
 # days 5-6 test. Pre means: a10 3, a11 3, a12 5.
@@ -102,3 +102,23 @@ def test_duration_columns_average_each_agent_first_and_skip_removed_trips():
     assert m["t_test_duration"] == pytest.approx(120 / 60)
     # the travel_time columns keep URB's current measure (the removed trip charged 30 min)
     assert m["t_HDV_test"] == pytest.approx((60 / 60 + 0.05 + 30.0) / 2)
+
+
+def _equity_records() -> pd.DataFrame:
+    """Humans h1, h2, h3 and one CAV; days 1-2 pre-CAV (H = 2), day 3 a test day (T = 0)."""
+    times = {1: [3.0, 4.0, 2.0, 5.0], 2: [5.0, 4.0, 2.0, 5.0], 3: [6.0, 3.0, 3.0, 4.0]}
+    rows = [{"day": d, "agent": a, "travel_time": t, "kind": "CAV" if a == 3 and d == 3 else "HDV"}
+            for d, ts in times.items() for a, t in enumerate(ts)]
+    return pd.DataFrame(rows)
+
+
+def test_equity_over_the_humans_hand_computed():
+    """Changes test - own pre-CAV mean: h1 6 - 4 = +2, h2 3 - 4 = -1, h3 3 - 2 = +1. Losses (2, 0, 1):
+    Gini = sum_ij |x_i - x_j| / (2 n^2 mean) = 8 / (2 * 9 * 1)."""
+    m = social_metrics(_equity_records(), 2, 0)
+    assert m["humans_worse_off_share"] == pytest.approx(2 / 3)
+    assert m["human_change_mean"] == pytest.approx(2 / 3)
+    assert m["human_loss_max"] == pytest.approx(2.0)
+    assert m["human_loss_gini"] == pytest.approx(8 / 18)
+    assert gini(np.zeros(4)) == 0.0 and gini(np.array([0.0, 0.0, 0.0, 5.0])) == pytest.approx(0.75)
+    assert math.isnan(social_metrics(_equity_records(), 2, 1)["human_loss_max"])  # no test day left

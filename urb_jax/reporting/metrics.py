@@ -185,3 +185,37 @@ def vector_metrics(records: pd.DataFrame, human_days: int, training_days: int) -
         "avg_time_lost": (ds.loc[post, "time_loss"] + ds.loc[post, "depart_delay"]).to_numpy(),
         "time_excess": (tt.loc[post] - pre_mean).sum(axis=1).to_numpy(),
     })
+
+
+# ---- equity: what the CAVs did to each human (not a URB column; metrics/SocialMetrics.csv)
+
+SOCIAL_COLUMNS = ["humans_worse_off_share", "human_change_mean", "human_loss_max", "human_loss_gini"]
+
+
+def social_metrics(records: pd.DataFrame, human_days: int, training_days: int) -> dict[str, float]:
+    """How the CAVs' arrival spread over the humans, from SUMO days only. Each human's change is
+    their mean travel time over the test days minus their own mean over the pre-CAV window (minutes;
+    removed trips skipped): the share of humans made worse off (change > 0), the mean change, the
+    largest individual loss, and the Gini coefficient of the losses (changes below 0 count as no loss;
+    0: nobody lost or all lost alike, towards 1: one human bears all the loss)."""
+    tt = _wide(records, "travel_time")
+    s = slices(tt.index.to_numpy(), human_days, training_days)
+    hdv, _ = groups(records)
+    if len(s["pre"]) == 0 or len(s["test"]) == 0 or len(hdv) == 0:
+        return dict.fromkeys(SOCIAL_COLUMNS, _nan())
+    change = (tt.loc[s["test"], hdv].mean(axis=0) - tt.loc[s["pre"], hdv].mean(axis=0)).dropna()
+    if change.empty:
+        return dict.fromkeys(SOCIAL_COLUMNS, _nan())
+    return {"humans_worse_off_share": float((change > 0).mean()), "human_change_mean": float(change.mean()),
+            "human_loss_max": float(change.max()), "human_loss_gini": gini(change.clip(lower=0).to_numpy())}
+
+
+def gini(x: np.ndarray) -> float:
+    """The Gini coefficient of non-negative values, sum_ij |x_i - x_j| / (2 n^2 mean), from the sorted
+    values; 0 when they are all 0."""
+    v = np.sort(np.asarray(x, dtype=np.float64))
+    n, total = len(v), float(v.sum())
+    if n == 0 or total == 0.0:
+        return 0.0
+    return float(2.0 * np.sum(np.arange(1, n + 1) * v) / (n * total) - (n + 1) / n)
+

@@ -24,7 +24,7 @@ import pyarrow.parquet as pq
 from urb_jax.core.atomic import atomic_path, write_bytes
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.paths import absolute_dir
-from urb_jax.reporting.metrics import compute_metrics, vector_metrics
+from urb_jax.reporting.metrics import SOCIAL_COLUMNS, compute_metrics, social_metrics, vector_metrics
 from urb_jax.sumo_bridge.types import DayResult
 
 
@@ -203,9 +203,9 @@ def run_metrics(folder: str | os.PathLike) -> dict[str, float]:
 
 def write_run_metrics(folder: Path, human_days: int,
                       training_days: int) -> tuple[dict[str, float], pd.DataFrame]:
-    """A run's metric files (metrics/BenchmarkMetrics.csv, VectorMetrics.csv, atomically) from its
-    records: every run's last step, and what `urb-jax metrics` redoes. Returns the metrics and the
-    records."""
+    """A run's metric files (metrics/BenchmarkMetrics.csv, VectorMetrics.csv, and SocialMetrics.csv
+    beside URB's: equity over the humans, atomically) from its records: every run's last step, and
+    what `urb-jax metrics` redoes. Returns the metrics and the records."""
     records = read_records(folder)
     metrics = compute_metrics(records, human_days, training_days)
     out = Path(folder) / "metrics"
@@ -213,6 +213,8 @@ def write_run_metrics(folder: Path, human_days: int,
     write_bytes(out / "BenchmarkMetrics.csv", pd.DataFrame([metrics]).to_csv(index=False).encode())
     write_bytes(out / "VectorMetrics.csv",
                 vector_metrics(records, human_days, training_days).to_csv(index=False).encode())
+    social = pd.DataFrame([social_metrics(records, human_days, training_days)])[SOCIAL_COLUMNS]
+    write_bytes(out / "SocialMetrics.csv", social.to_csv(index=False).encode())
     return metrics, records
 
 
