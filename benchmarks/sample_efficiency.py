@@ -88,19 +88,53 @@ def _done_config(folder: Path) -> dict | None:
 
 
 def references(results: Path, alg: str) -> dict[str, float]:
-    """t_pre (pre-CAV humans) and AON on the same humans, from the SUMO-only run's first seed, and
-    the paper's t_CAV (tab:kpis)."""
+    """t_pre (pre-CAV humans) and AON on the same humans, from the first finished run of `alg` (the
+    SUMO-only run, else the default hybrid one: the same human phase), and the paper's t_CAV
+    (tab:kpis)."""
     refs: dict[str, float] = {}
-    folder = results / f"sumo_s1_saint_arnoult_{alg}_s0"
-    if (folder / "exp_config.json").is_file():
-        config = json.loads((folder / "exp_config.json").read_text())
-        refs["AON, same humans"] = config.get("aon_same_humans", {}).get("t_CAV_duration", float("nan"))
-        metrics = pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv").iloc[0]
-        refs["t_pre (humans before the CAVs)"] = float(metrics["t_pre_duration"])
+    for name in (f"sumo_s1_saint_arnoult_{alg}_s0", f"se_saint_arnoult_{alg}_p4_s0"):
+        config = _done_config(results / name)
+        if config is not None:
+            refs["AON, same humans"] = config.get("aon_same_humans", {}).get("t_CAV_duration", float("nan"))
+            metrics = pd.read_csv(results / name / "metrics" / "BenchmarkMetrics.csv").iloc[0]
+            refs["t_pre (humans before the CAVs)"] = float(metrics["t_pre_duration"])
+            break
     table = next(t for t in load_paper_numbers()["entries"]["scenario1"]["tables"]
                  if t["network"] == "saint_arnoult")
     refs["paper (tab:kpis)"] = table["rows"][alg]["values"]["t_CAV"]
     return refs
+
+
+MARGIN = 0.01  # min: "at the final level" means within ±0.6 s of it (TOST, 90% interval)
+
+
+def answers(alg: str, series: dict[str, list[Point]]) -> list[str]:
+    """The page's two questions, per algorithm, against SUMO only's final point (6,000 training days
+    in SUMO): the fewest SUMO days at which each curve is at that level (Welch TOST within ±MARGIN,
+    or significantly below it), and the hybrid runs (all 6,000 training days) that end significantly
+    above it (Welch, one-sided 5%)."""
+    sumo, hybrid = series["SUMO only"], series["hybrid"]
+    if not sumo:
+        return []
+    final = sumo[-1]
+
+    def at_level(p: Point) -> bool:
+        d = V.welch(p.t_cav, final.t_cav)
+        return V.equivalence(d, MARGIN).kind == V.HOLDS or (d.diff < 0 and d.p_less() < 0.05)
+
+    def worse(p: Point) -> str | None:
+        d = V.welch(p.t_cav, final.t_cav)
+        return f"{p.label} ({d.diff:+.4f}, p = {d.p_greater():.3f})" if d.p_greater() < 0.05 else None
+
+    def first(points: list[Point]) -> str:
+        hit = next((p for p in points if at_level(p)), None)
+        return "never" if hit is None else f"{hit.sumo_days:,.0f} SUMO days ({_wall(hit.wall_s)})"
+
+    bad = [w for p in hybrid if (w := worse(p))]
+    return [f"**{ALGS[alg]}**: SUMO only ends at {final.t_cav.mean:.4f} after {final.sumo_days:,.0f} SUMO "
+            f"days ({_wall(final.wall_s)}). At that level (within ±{MARGIN} min, Welch TOST, or below it): "
+            f"SUMO only from {first(sumo)}, the hybrid from {first(hybrid)}. Hybrid runs that end "
+            f"significantly above it: {', '.join(bad) if bad else 'none'}.", ""]
 
 
 def table_markdown(alg: str, points: list[Point], refs: dict[str, float]) -> list[str]:
@@ -162,13 +196,14 @@ def main() -> None:
     figure = out.with_suffix(".png")
     curves: dict[str, dict[str, list[Point]]] = {}
     refs = {}
-    body = []
+    body, summary = [], []
     for alg in ALGS:
         series = {"hybrid": hybrid_points(results, alg), "SUMO only": sumo_only_points(results, alg)}
         if not any(series.values()):
             body += [f"## {ALGS[alg]}", "", "Not run yet.", ""]
             continue
         curves[alg], refs[alg] = series, references(results, alg)
+        summary += answers(alg, series)
         points = sorted([*series["SUMO only"], *series["hybrid"]], key=lambda p: (p.sumo_days, p.label))
         body += table_markdown(alg, points, refs[alg])
     if curves:
@@ -186,7 +221,7 @@ def main() -> None:
             "snapshot's is the run's wall time when that checkpoint was saved; a hybrid run that reused "
             "another run's human phase did not simulate it.", "",
             f"![sample efficiency]({figure.name})", ""]
-    write_text(out, "\n".join([*head, *body]))
+    write_text(out, "\n".join([*head, *summary, *body]))
     print(f"-> {out}, {figure}")
 
 
