@@ -4,6 +4,7 @@ marked done at the end, and the finishing step that turns records into metric fi
 from __future__ import annotations
 
 import atexit
+import datetime
 import fcntl
 import functools
 import json
@@ -234,9 +235,11 @@ def seed_groups_of(results_dir: Path, names: list[str]) -> list[list[str]]:
 
 
 def mark_done(folder: Path, config: dict[str, Any], **updates: Any) -> None:
-    """exp_config.json with status done and `updates` (without it, the run is unfinished), then the
-    merged records' parts go: the finish is ordered so that a kill at any instant resumes."""
-    config.update(status="done", **updates)
+    """exp_config.json with status done, `finished_at` (UTC, to the second: the paper page's ledger
+    dates each run by it) and `updates` (without it, the run is unfinished), then the merged
+    records' parts go: the finish is ordered so that a kill at any instant resumes."""
+    finished = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    config.update(status="done", finished_at=finished, **updates)
     write_config(folder, config)
     remove_parts(folder)
 

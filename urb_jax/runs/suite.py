@@ -34,9 +34,10 @@ from urb_jax.reporting.paper import (
     paper_markdown,
     read_ledger,
 )
+from urb_jax.reporting.provenance import PROVENANCE, provenance
 from urb_jax.reporting.suite_report import suite_figures, suite_tables
 from urb_jax.runs.baseline import run_baseline
-from urb_jax.runs.folder import run_status, run_writer, train_run_names
+from urb_jax.runs.folder import CONFIG_FILE, run_status, run_writer, train_run_names
 from urb_jax.runs.request import BaselineRequest, ResumeRequest, TrainRequest, request_fields
 from urb_jax.runs.standing import seed_groups
 from urb_jax.runs.train import resume_train, run_train
@@ -188,6 +189,19 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
     return folders
 
 
+def ledger_rows(folders: list[Path]) -> pd.DataFrame:
+    """`collect_folders`' rows of finished `folders`, each with its provenance (commit, machine,
+    versions, command and request, human-phase reuse, wall time, date: `reporting.provenance`) and
+    no folder path: what the paper page's ledger keeps of a run, so that a row says who made it and
+    `urb-jax suite ENTRY --verify` can make it again."""
+    rows = collect_folders(folders)
+    if rows.empty:
+        return rows.drop(columns=["folder"], errors="ignore")
+    configs = [Path(f) / CONFIG_FILE for f in rows["folder"]]
+    found = [provenance(json.loads(c.read_text()), c) for c in configs]
+    return rows.assign(**{PROVENANCE: found}).drop(columns=["folder"])
+
+
 def recorded_runs(ledger: pd.DataFrame, entry: str) -> set[str]:
     """The run folder names the paper page's ledger (`read_ledger`) holds for catalogue entry `entry`."""
     return set(ledger.loc[ledger["entry"] == entry, "exp_id"])
@@ -287,7 +301,7 @@ def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.
     spec = load_suite(find_config("suites", entry))
     planned = list(dict.fromkeys(name for r in spec.runs for name in r.folder_names()))
     done_here = finished_here(results_dir, planned)  # seeds of unfinished runs too
-    here = collect_folders(done_here).drop(columns=["folder"], errors="ignore")
+    here = ledger_rows(done_here)
     elsewhere = set(planned) - {f.name for f in done_here}
     before = ledger[(ledger["entry"] == entry) & ledger["exp_id"].isin(elsewhere)]
     parts = [t for t in (here, before.drop(columns=["entry"])) if not t.empty]
