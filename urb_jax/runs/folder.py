@@ -208,11 +208,12 @@ def write_config(folder: Path, config: dict[str, Any]) -> None:
     write_json(folder / CONFIG_FILE, config)
 
 
-def write_outputs(folder: Path, human_days: int,
-                  training_days: int) -> tuple[dict[str, float], dict[str, Any]]:
-    """The metric files and plots of a finished run, from its records; returns the metrics and
-    the phase keys that describe the records to URB's tools (`urb_names.phase_keys`)."""
-    metrics, records = write_run_metrics(folder, human_days, training_days)
+def write_outputs(folder: Path, human_days: int, training_days: int,
+                  hybrid: bool = False) -> tuple[dict[str, float], dict[str, Any]]:
+    """The metric files and plots of a finished run (`hybrid`: some training days on the surrogate),
+    from its records; returns the metrics and the phase keys that describe the records to URB's
+    tools (`urb_names.phase_keys`)."""
+    metrics, records = write_run_metrics(folder, human_days, training_days, hybrid)
     write_plots(folder, records, human_days, training_days, smooth_by=1)
     return metrics, phase_keys(records, human_days)
 
