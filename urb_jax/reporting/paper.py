@@ -14,9 +14,10 @@ contradict a claim, the entry's `why_not` says why, with its evidence, or the pa
 reason is not established yet.
 
 The page keeps a ledger beside it (docs/paper_runs.json): one row per finished run it has shown
-(its config keys and metrics, no path). A catalogue takes longer than one machine lives, so each
-generation shows the runs finished here and the ledger's runs finished elsewhere: the page fills in
-across machines and sessions instead of forgetting what ran before.
+(its config keys, metrics and provenance: `reporting.provenance`; no path). A catalogue takes
+longer than one machine lives, so each generation shows the runs finished here and the ledger's
+runs finished elsewhere: the page fills in across machines and sessions instead of forgetting what
+ran before.
 """
 
 from __future__ import annotations
