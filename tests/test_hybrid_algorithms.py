@@ -46,7 +46,7 @@ def test_every_algorithm_runs_the_loop_and_resumes_to_the_same_bytes(alg, tmp_pa
     (out,) = run_train(TrainRequest(exp_id=alg, **kw), executor=FakeExecutor())
     cfg = json.loads((out.folder / "exp_config.json").read_text())
     assert cfg["status"] == "done" and cfg["sumo_training_days"] >= 2 and cfg["rounds"] == 2
-    assert np.isfinite(out.metrics["t_CAV"]) and np.isfinite(out.metrics["t_train"])
+    assert np.isfinite(out.metrics["t_CAV"]) and np.isfinite(out.metrics["t_train_sumo_days"])
     (stopped,) = run_train(TrainRequest(exp_id="stopped", **kw), executor=FakeExecutor(), stop_after_round=1)
     assert stopped.stopped == 1 and result_digests(stopped.folder) is None
     (resumed,) = resume_train(ResumeRequest("stopped", results_dir=str(tmp_path / "r"), progress=False),

@@ -83,7 +83,8 @@ def test_loop_records_and_metric_provenance(tiny_iql_reference):
     assert cfg["aon_same_humans"]["t_HDV"] == pytest.approx(aon_t[~is_cav].mean(), rel=1e-5)
     aon_dur = FakeDay()(scn, aon_day, seed=42).duration
     assert cfg["aon_same_humans"]["t_CAV_duration"] == pytest.approx(aon_dur[is_cav].mean() / 60, rel=1e-5)
-    assert np.isfinite(out.metrics["t_pre"]) and np.isfinite(out.metrics["t_train"])
+    assert np.isfinite(out.metrics["t_pre"]) and np.isfinite(out.metrics["t_train_sumo_days"])
+    assert np.isnan(out.metrics["t_train"])  # its SUMO training days only: not URB's t_train
     assert (folder / "plots" / "surrogate_error.png").is_file()
 
 

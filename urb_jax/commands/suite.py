@@ -38,6 +38,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="say which runs are finished here, finished elsewhere (the ledger), being "
                              "written by another process now, stopped or new, and exit; without a suite, "
                              "a line per catalogue entry")
+    parser.add_argument("--verify", nargs="*", metavar="RUN_ID", default=None,
+                        help="rerun the entry's runs the ledger (--ledger) records, all or the RUN_IDs "
+                             "named, into RESULTS_DIR/verify_<entry> (never the recorded runs' folders; "
+                             "resumable), and say row by row: identical, or different with each metric "
+                             "and both runs' commit and machine; exit 1 where a row differs")
     parser.add_argument("--list", action="store_true",
                         help="list the shipped suites (the paper's catalogue and the others) and exit")
     parser.set_defaults(func=run)
@@ -54,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.status:
         return _status(args)
+    if args.verify is not None:
+        return _verify(args)
     if args.list or not args.suite:
         return _list(args.list)
     spec = select(load_suite(find_config("suites", args.suite)), args.only, args.networks_dir)
@@ -81,6 +88,31 @@ def _recorded(args: argparse.Namespace) -> dict[str, set[str]]:
         return {}
     ledger = read_ledger(args.ledger)
     return {entry: recorded_runs(ledger, entry) for entry in load_paper_numbers()["entries"]}
+
+
+def _verify(args: argparse.Namespace) -> int:
+    """--verify: rerun the ledger's rows of the entry (all, or the run ids given) beside the results
+    folder and compare them with what the ledger recorded."""
+    from pathlib import Path
+
+    from urb_jax.core.configio import find_config
+    from urb_jax.core.errors import ConfigError
+    from urb_jax.reporting.paper import read_ledger
+    from urb_jax.runs.suite import load_suite, select
+    from urb_jax.runs.verify import report_lines, rows_to_verify, verify_folder, verify_rows
+
+    if not args.suite or args.ledger.lower() == "none" or not Path(args.ledger).is_file():
+        raise ConfigError(f"--verify: needs a catalogue entry and its ledger (--ledger {args.ledger}). Fix: "
+                          "run `urb-jax suite ENTRY --verify` where the ledger file exists.")
+    rows = rows_to_verify(read_ledger(args.ledger), args.suite, list(args.verify), args.ledger)
+    spec = select(load_suite(find_config("suites", args.suite)), None, args.networks_dir)
+    out = verify_folder(args.results_dir, Path(args.suite).stem)
+    print(f"verify: rerunning {len(rows)} recorded row(s) of {args.suite} into {out}", flush=True)
+    checks = verify_rows(spec.runs, rows, out, log=lambda line: print(line, flush=True),
+                         progress=not args.no_progress)
+    for line in report_lines(checks):
+        print(line)
+    return 0 if all(c.identical for c in checks) else 1
 
 
 def _status(args: argparse.Namespace) -> int:

@@ -84,6 +84,7 @@ def resume_request_of(args: argparse.Namespace) -> ResumeRequest:
 
 
 def run(args: argparse.Namespace) -> int:
+    from urb_jax.reporting.comparable import SUMO_DAYS
     from urb_jax.runs.train import resume_train, run_train
 
     if args.dry_run:
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     for out in outs:
         m = out.metrics
         print(f"results: {out.folder}  ({out.wall_time_s:.1f} s)")
-        for key in METRIC_KEYS:
+        for key in (SUMO_DAYS[k] if SUMO_DAYS.get(k) in m else k for k in METRIC_KEYS):  # hybrid: its own
             print(f"  {key:18s} {m[key]:.4f}" if m[key] == m[key] else f"  {key:18s} N/A")
         aon = aon_t_cav(out)
         if aon is not None:

@@ -3,7 +3,10 @@
 Runs are grouped as URB's leaderboard generator groups them (`urb_names.URB_COLLAPSE_FIELDS`:
 exp type, env and task config, network, algorithm, script, algorithm config), with URB's names:
 `algorithm` is URB's (iql_torchrl, iql, ... ; a baseline's model), `script` says who ran it, so a
-urb-jax row never merges with a row of URB's own runs, nor a hybrid run with a `--mode sumo` one.
+urb-jax row never merges with a row of URB's own runs, nor a hybrid run with a `--mode sumo` one,
+nor runs that differ in their `--set` overrides (`script` ends with them). A hybrid run's t_train,
+costs of learning and time lost cover its SUMO training days only: their URB columns are empty
+(N/A) and the values are kept as `<column>_sumo_days` (`comparable`, docs/metrics.md).
 Older urb-jax runs are read under their current names (`urb_names.names_of`). Each run
 contributes the first row of its BenchmarkMetrics.csv.
 """
@@ -14,11 +17,13 @@ import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.reporting.comparable import DAYS_COLUMNS, comparable_metrics, is_hybrid
 from urb_jax.reporting.urb_names import leaderboard_fields
 
 KEYS = ["network", "algorithm", "script", "alg_config", "task_config", "env_config", "exp_type"]
@@ -47,14 +52,30 @@ def collect_folders(folders: list[Path]) -> pd.DataFrame:
         if not (cfg_path.is_file() and metrics_path.is_file()):
             continue
         cfg = json.loads(cfg_path.read_text())
-        metrics = pd.read_csv(metrics_path).iloc[0].to_dict()
-        optimum = cfg_path.parent / "optimum.json"  # `urb-jax optimum RUN`: the SUMO-checked reference
-        if optimum.is_file():
-            metrics["optimality_gap"] = json.loads(optimum.read_text())["optimality_gap"]
-        fields = {k: ("?" if v is None else v) for k, v in leaderboard_fields(cfg).items()}
-        rows.append({"exp_id": cfg_path.parent.name, "folder": str(cfg_path.parent), **fields,
-                     "env_seed": cfg.get("env_seed"), **metrics})
+        rows.append({"exp_id": cfg_path.parent.name, "folder": str(cfg_path.parent), **_fields(cfg),
+                     "env_seed": cfg.get("env_seed"), **_metrics(cfg, cfg_path.parent)})
     return pd.DataFrame(rows)
+
+
+def _fields(cfg: dict[str, Any]) -> dict[str, Any]:
+    """A run's leaderboard fields (URB's names, '?' where unknown), its seed where it has one, and
+    its training days in SUMO and on the surrogate (`comparable.DAYS_COLUMNS`) where recorded."""
+    fields = leaderboard_fields(cfg)
+    seed = fields.pop("torch_seed")
+    out = {k: ("?" if v is None else v) for k, v in fields.items()}
+    days = {k: cfg[k] for k in DAYS_COLUMNS if cfg.get(k) is not None}
+    return {**out, **({"torch_seed": seed} if seed is not None else {}), **days}
+
+
+def _metrics(cfg: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """The run's BenchmarkMetrics row, a hybrid run's SUMO-days-only columns under their own names
+    (also for runs written before they were: `comparable_metrics`), and `urb-jax optimum`'s gap."""
+    metrics = pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv").iloc[0].to_dict()
+    metrics = comparable_metrics(metrics) if is_hybrid(cfg) else metrics
+    optimum = folder / "optimum.json"  # `urb-jax optimum RUN`: the SUMO-checked reference
+    if optimum.is_file():
+        metrics["optimality_gap"] = json.loads(optimum.read_text())["optimality_gap"]
+    return metrics
 
 
 def aggregate(runs: pd.DataFrame, metrics: Sequence[str] = SHOWN) -> pd.DataFrame:

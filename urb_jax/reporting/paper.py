@@ -14,9 +14,10 @@ contradict a claim, the entry's `why_not` says why, with its evidence, or the pa
 reason is not established yet.
 
 The page keeps a ledger beside it (docs/paper_runs.json): one row per finished run it has shown
-(its config keys and metrics, no path). A catalogue takes longer than one machine lives, so each
-generation shows the runs finished here and the ledger's runs finished elsewhere: the page fills in
-across machines and sessions instead of forgetting what ran before.
+(its config keys, metrics and provenance: `reporting.provenance`; no path). A catalogue takes
+longer than one machine lives, so each generation shows the runs finished here and the ledger's
+runs finished elsewhere: the page fills in across machines and sessions instead of forgetting what
+ran before.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import pandas as pd
 from urb_jax.core.configio import configs_dir
 from urb_jax.core.errors import ConfigError
 from urb_jax.reporting import verdicts as V  # noqa: N812
+from urb_jax.reporting.comparable import comparable_metrics, hybrid_note, is_hybrid
 from urb_jax.reporting.suite_report import runs_tables
 
 PAPER_FILE = ("paper", "urb_paper.json")
@@ -231,6 +233,16 @@ NOT_COMPARED = {"c_all", "c_HDV", "c_CAV"}  # the published costs follow neither
 WHY_COST = "the published costs follow a definition unlike ours (docs/metrics.md): only their sign is judged"
 
 
+def hybrid_cost(rows: pd.DataFrame, column: str) -> str | None:
+    """'not comparable: hybrid (N SUMO of M training days)' where `column` is a cost of learning and
+    `rows` a hybrid run's seeds: its costs cover its SUMO training days only, URB's every training
+    day (`comparable`); None otherwise."""
+    if column not in NOT_COMPARED or rows.empty:
+        return None
+    first = {k: v for k, v in rows.iloc[0].to_dict().items() if isinstance(k, str)}
+    return hybrid_note(first) if is_hybrid(first) else None
+
+
 @dataclass(frozen=True)
 class Judged:
     """One claim of the paper, judged in both measures (the first, SUMO duration, is the paper's)."""
@@ -259,6 +271,9 @@ def judge_claim(claim: list[Any], row: str, ours: Seeds, paper: dict[str, Any], 
         missing = _missing_row(key, ours, paper)
         if missing:
             return missing
+    hybrid = hybrid_cost(ours[lkey], lcol)
+    if hybrid:
+        return V.not_comparable(hybrid)
     lvals = seed_values(ours[lkey], lcol, measure)
     if lvals is None:
         return V.not_comparable("per-seed values not recorded")
@@ -515,6 +530,9 @@ def _paper_cell(row: dict[str, Any], col: str) -> str:
 
 
 def _our_cell(rows: pd.DataFrame, col: str, measure: int) -> str:
+    hybrid = hybrid_cost(rows, col)
+    if hybrid:
+        return hybrid
     vals = seed_values(rows, col, measure)
     if vals is None:
         return "n/a"
@@ -709,6 +727,7 @@ def read_ledger(path: str | Path) -> pd.DataFrame:
         raise ConfigError(f"{path}: not a runs ledger (key 'runs': rows with 'entry' and 'exp_id'). "
                           "Fix: restore it from git (git checkout -- FILE), or move it away to start a new "
                           "one (the page then shows only the runs finished here).")
+    rows = [comparable_metrics(r) if is_hybrid(r) else r for r in rows]  # rows kept before the split
     return pd.DataFrame(rows, columns=list(dict.fromkeys([*LEDGER_KEYS, *(k for r in rows for k in r)])))
 
 

@@ -24,6 +24,7 @@ import pyarrow.parquet as pq
 from urb_jax.core.atomic import atomic_path, write_bytes
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.paths import absolute_dir
+from urb_jax.reporting.comparable import comparable_metrics, is_hybrid
 from urb_jax.reporting.metrics import SOCIAL_COLUMNS, compute_metrics, social_metrics, vector_metrics
 from urb_jax.sumo_bridge.types import DayResult
 
@@ -198,16 +199,19 @@ def run_metrics(folder: str | os.PathLike) -> dict[str, float]:
     """A finished run's BenchmarkMetrics row (URB's column names), computed from its records and
     the phase lengths in its exp_config.json; writes nothing (`write_run_metrics` writes the files)."""
     cfg = finished_run_config(folder)
-    return compute_metrics(read_records(folder), int(cfg["human_days"]), int(cfg["training_days"]))
+    metrics = compute_metrics(read_records(folder), int(cfg["human_days"]), int(cfg["training_days"]))
+    return comparable_metrics(metrics) if is_hybrid(cfg) else metrics
 
 
-def write_run_metrics(folder: Path, human_days: int,
-                      training_days: int) -> tuple[dict[str, float], pd.DataFrame]:
+def write_run_metrics(folder: Path, human_days: int, training_days: int,
+                      hybrid: bool = False) -> tuple[dict[str, float], pd.DataFrame]:
     """A run's metric files (metrics/BenchmarkMetrics.csv, VectorMetrics.csv, and SocialMetrics.csv
     beside URB's: equity over the humans, atomically) from its records: every run's last step, and
-    what `urb-jax metrics` redoes. Returns the metrics and the records."""
+    what `urb-jax metrics` redoes. A `hybrid` run's columns that cover its SUMO training days only
+    go under their own names (`comparable.comparable_metrics`). Returns the metrics and the records."""
     records = read_records(folder)
     metrics = compute_metrics(records, human_days, training_days)
+    metrics = comparable_metrics(metrics) if hybrid else metrics
     out = Path(folder) / "metrics"
     out.mkdir(parents=True, exist_ok=True)
     write_bytes(out / "BenchmarkMetrics.csv", pd.DataFrame([metrics]).to_csv(index=False).encode())

@@ -12,6 +12,12 @@ config `save_every` would), under OUT/<exp_id>/, as a whole (a temporary folder 
 What the records do not hold is written as `nan` (tripinfo waitingTime and speedFactor, the
 statistic's waitingTime) and RouteRL's `cost_table` column is left out: no URB metric reads them.
 Every agent has a tripinfo line, removed ones too (duration `nan`), so URB's groups are ours.
+
+A hybrid run's t_train, costs of learning and time lost cover its SUMO training days only: the
+export's BenchmarkMetrics.csv leaves those URB columns empty and keeps the values as
+`<column>_sumo_days` (docs/metrics.md, "Comparable columns"). URB's analysis/metrics.py, run on the
+export, recomputes them from the exported days, which are the SUMO days only: they are not URB's
+either, whatever the file then says.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from urb_jax.city.scenario import Scenario
 from urb_jax.core.atomic import umask
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.version import __version__
+from urb_jax.reporting.comparable import comparable_metrics, is_hybrid
 from urb_jax.reporting.day_export import run_config, scenario_of_run
 from urb_jax.reporting.metrics import day_stats
 from urb_jax.reporting.records import read_records
@@ -92,7 +99,7 @@ def _write_folder(target: Path, run: Path, records: pd.DataFrame, scn: Scenario,
     try:
         os.chmod(tmp, 0o777 & ~umask())
         days = _write_days(tmp, records, scn, save_every)
-        _copy_outputs(run, tmp)
+        _copy_outputs(run, tmp, is_hybrid(config))
         pd.DataFrame({"id": scn.agent_id, "origin": scn.agent_origin, "destination": scn.agent_destination,
                       "start_time": scn.agent_depart, "kind": list(scn.agent_kind)}).to_csv(
             tmp / "agents.csv", index=False)
@@ -110,14 +117,19 @@ def _write_folder(target: Path, run: Path, records: pd.DataFrame, scn: Scenario,
     return days
 
 
-def _copy_outputs(run: Path, folder: Path) -> None:
-    """Our metric files (also as *_urb_jax.csv, which URB's script leaves alone) and plots."""
+def _copy_outputs(run: Path, folder: Path, hybrid: bool) -> None:
+    """Our metric files (also as *_urb_jax.csv, which URB's script leaves alone) and plots; a
+    `hybrid` run's BenchmarkMetrics with URB's SUMO-days-only columns empty, their values under their
+    own names (`comparable`: a run written before the split is split here)."""
     (folder / "metrics").mkdir()
     for name in ("BenchmarkMetrics", "VectorMetrics"):
         src = run / "metrics" / f"{name}.csv"
         if src.is_file():
             shutil.copyfile(src, folder / "metrics" / f"{name}.csv")
-            shutil.copyfile(src, folder / "metrics" / f"{name}{OUR_COPY}.csv")
+            if hybrid and name == "BenchmarkMetrics":
+                row = comparable_metrics(pd.read_csv(src).iloc[0].to_dict())
+                pd.DataFrame([row]).to_csv(folder / "metrics" / f"{name}.csv", index=False)
+            shutil.copyfile(folder / "metrics" / f"{name}.csv", folder / "metrics" / f"{name}{OUR_COPY}.csv")
     if (run / "plots").is_dir():
         shutil.copytree(run / "plots", folder / "plots")
 

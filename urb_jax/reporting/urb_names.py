@@ -12,6 +12,9 @@ experience_collecting_episodes and training_eps. So a urb-jax run says:
 * `script`: how urb-jax ran it (`urb-jax train --mode M --hybrid-conf H --train-days D`,
   `urb-jax baseline`), never a URB script, so a urb-jax row never merges with a URB row and
   runs of other trainers or budgets never merge with each other;
+* `script` ends with the run's `--set` overrides (`... --set hybrid.sumo_days_per_round=16`), so
+  runs that differ in them are never averaged as reruns; `torch_seed`: the run's seed (URB's seed
+  column; a baseline has none);
 * `alg_config`: URB's config name where the file is URB's (so the link is that file);
 * `training_eps`, `test_eps`, `phase_days`: what the records hold (a train run's SUMO training
   days, not the task config's 200).
@@ -73,7 +76,30 @@ def is_urb_jax(cfg: dict[str, Any]) -> bool:
 
 def names_of(cfg: dict[str, Any]) -> dict[str, Any]:
     """The naming fields of a urb-jax run's exp_config.json, also for runs written before they
-    existed (`algorithm` was our id, `script` just "urb-jax train" / "urb-jax baseline")."""
+    existed (`algorithm` was our id, `script` just "urb-jax train" / "urb-jax baseline"): its
+    `script` with its `--set` overrides (runs that differ in them are different experiments, never
+    merged as reruns) and, for a seeded run, its seed as URB's `torch_seed` column."""
+    names = _names_of(cfg)
+    names["script"] = with_overrides(str(names.get("script") or ""), overrides_of(cfg))
+    if cfg.get("seed") is not None:
+        names["torch_seed"] = cfg["seed"]
+    return names
+
+
+def overrides_of(cfg: dict[str, Any]) -> list[str]:
+    """A run's `--set` items as given (train_args, or exp_config.json's `overrides`)."""
+    given = (cfg.get("train_args") or {}).get("overrides") or (cfg.get("overrides") or {}).get("given")
+    return [str(x) for x in given or []]
+
+
+def with_overrides(script: str, overrides: list[str]) -> str:
+    """`script` + ' --set ITEM' per override, once (idempotent); a '/' in an item is written %2F, as
+    URB's generator keeps only a script's last path part."""
+    suffix = "".join(f" --set {o.replace('/', '%2F')}" for o in overrides)
+    return script if not suffix or script.endswith(suffix) else script + suffix
+
+
+def _names_of(cfg: dict[str, Any]) -> dict[str, Any]:
     if cfg.get("alg"):  # written with them
         keys = ("algorithm", "alg", "script", "alg_config", "baseline_model")
         return {k: cfg.get(k) for k in keys if k != "baseline_model" or cfg.get(k)}
@@ -102,6 +128,7 @@ def leaderboard_fields(cfg: dict[str, Any]) -> dict[str, Any]:
         "alg_config": (cfg.get("alg_config") or cfg.get("algorithm_config")
                        or cfg.get("algorithm_configuration") or ""),
         "alg": cfg.get("alg", "") if is_urb_jax(cfg) else "",
+        "torch_seed": cfg.get("torch_seed"),  # URB's seed column (a urb-jax run's seed, `names_of`)
     }
 
 

@@ -4,6 +4,7 @@ marked done at the end, and the finishing step that turns records into metric fi
 from __future__ import annotations
 
 import atexit
+import datetime
 import fcntl
 import functools
 import json
@@ -207,11 +208,12 @@ def write_config(folder: Path, config: dict[str, Any]) -> None:
     write_json(folder / CONFIG_FILE, config)
 
 
-def write_outputs(folder: Path, human_days: int,
-                  training_days: int) -> tuple[dict[str, float], dict[str, Any]]:
-    """The metric files and plots of a finished run, from its records; returns the metrics and
-    the phase keys that describe the records to URB's tools (`urb_names.phase_keys`)."""
-    metrics, records = write_run_metrics(folder, human_days, training_days)
+def write_outputs(folder: Path, human_days: int, training_days: int,
+                  hybrid: bool = False) -> tuple[dict[str, float], dict[str, Any]]:
+    """The metric files and plots of a finished run (`hybrid`: some training days on the surrogate),
+    from its records; returns the metrics and the phase keys that describe the records to URB's
+    tools (`urb_names.phase_keys`)."""
+    metrics, records = write_run_metrics(folder, human_days, training_days, hybrid)
     write_plots(folder, records, human_days, training_days, smooth_by=1)
     return metrics, phase_keys(records, human_days)
 
@@ -234,9 +236,11 @@ def seed_groups_of(results_dir: Path, names: list[str]) -> list[list[str]]:
 
 
 def mark_done(folder: Path, config: dict[str, Any], **updates: Any) -> None:
-    """exp_config.json with status done and `updates` (without it, the run is unfinished), then the
-    merged records' parts go: the finish is ordered so that a kill at any instant resumes."""
-    config.update(status="done", **updates)
+    """exp_config.json with status done, `finished_at` (UTC, to the second: the paper page's ledger
+    dates each run by it) and `updates` (without it, the run is unfinished), then the merged
+    records' parts go: the finish is ordered so that a kill at any instant resumes."""
+    finished = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    config.update(status="done", finished_at=finished, **updates)
     write_config(folder, config)
     remove_parts(folder)
 

@@ -350,7 +350,7 @@ def _finish_group(folders: list[Path], configs: list[dict[str, Any]], result: li
 def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H: int,
                   wall: float) -> RunResult:
     T = summary.sumo_training_days
-    metrics, phases = write_outputs(folder, H, T)
+    metrics, phases = write_outputs(folder, H, T, hybrid=summary.surrogate_days > 0)
     write_rounds(folder, summary.rounds)
     mark_done(folder, config, **names_of(config), **phases, wall_time_s=round(wall, 2), training_days=T,
               sumo_training_days=T,
