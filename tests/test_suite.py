@@ -252,7 +252,8 @@ def test_progress_estimates_the_groups_not_started_and_the_run(tmp_path):
 def test_progress_of_a_sumo_only_run_counts_its_sumo_days(tmp_path):
     """A --mode sumo run's rounds have no surrogate leg: its pace is its SUMO days' seconds."""
     rows = [{"round": 1, "sumo_days": 4, "sumo_s": 8.0}, {"round": 2, "sumo_days": 4, "sumo_s": 12.0}]
-    _fake_run(tmp_path / "c_s0", ["c_s0", "c_s1"], {"rounds_done": 2, "rounds_total": 32, "rounds": [rows, rows]})
+    _fake_run(tmp_path / "c_s0", ["c_s0", "c_s1"],
+              {"rounds_done": 2, "rounds_total": 32, "rounds": [rows, rows]})
     _fake_run(tmp_path / "c_s1", ["c_s0", "c_s1"])
     lines = run_progress(tmp_path, SuiteRun("train", "c", {"seeds": [0, 1]}))
     assert lines[0].endswith("its rounds took 10 s each here, so the 30 left about 5.0 min, then the test "
