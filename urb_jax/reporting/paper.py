@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from urb_jax.core.configio import configs_dir
+from urb_jax.core.configio import configs_dir, loads_strict
 from urb_jax.core.errors import ConfigError
 from urb_jax.reporting.leaderboard import SHOWN, aggregate
 from urb_jax.reporting.suite_report import runs_tables
@@ -58,8 +58,8 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
     is one of COLUMNS, every claim is well formed and holds on the paper's own numbers."""
     path = Path(path) if path else paper_file()
     try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        data = loads_strict(path.read_text(), path)
+    except (OSError, ValueError) as exc:  # ValueError: bad JSON or UTF-8
         raise ConfigError(f"{path}: cannot read the paper's numbers ({exc}). "
                           "Fix: restore the file.") from None
     for entry, e in data.get("entries", {}).items():
