@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 from urb_jax.core.errors import ConfigError
+from urb_jax.core.ranges import ENVS, FRACTION, SIZE, STEPS, Range, above, between, check_ranges
 
+LR = above(0, 10, "URB's configs: 1e-4 to 1e-2")
+MEMORY = between(1, 100_000_000)  # replay samples
 FRAME_KINDS = ("days", "urb")  # what the value learners replay (algorithms/frames.py)
 
 
@@ -40,6 +44,17 @@ class TorchRLCommon:
     # days (minibatches grow with B instead of the step count). See update_plan.
     num_minibatches: int = 0
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "agent_frames_per_batch": between(1, 100_000), "n_iters": between(1, STEPS),
+        "num_epochs": between(1, 10_000), "minibatch_size": between(1, 10_000_000),
+        "mlp_depth": between(1, 64), "mlp_cells": between(1, SIZE), "lr": LR, "gamma": FRACTION,
+        "max_grad_norm": above(0, 1e6), "od_embedding_dim": between(0, SIZE, "0: no OD embedding"),
+        "num_envs": between(1, ENVS), "num_minibatches": between(0, 100_000, "0: URB's update count"),
+    }
+
+    def __post_init__(self) -> None:
+        check_ranges(self)
+
 
 @dataclass(frozen=True)
 class IQLConfig(TorchRLCommon):
@@ -52,7 +67,13 @@ class IQLConfig(TorchRLCommon):
     # one per CAV turn with every CAV's row, reward on the day's last frame only (algorithms/frames.py)
     frames: str = "days"
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        **TorchRLCommon.RANGES, "memory_size": MEMORY, "eps_init": FRACTION, "eps_end": FRACTION,
+        "exploration_fraction": FRACTION, "target_eps": FRACTION,
+    }
+
     def __post_init__(self) -> None:
+        check_ranges(self)
         check_frames(self.frames, self.num_minibatches)
 
 
@@ -69,7 +90,14 @@ class PPOConfig(TorchRLCommon):
     critic_cells: int = 256
     frames: str = "days"  # as IQLConfig.frames: "urb" trains on URB's TorchRL frames (GAE across them)
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        **TorchRLCommon.RANGES, "clip_epsilon": above(0, 10), "lmbda": FRACTION,
+        "entropy_eps": between(0, 100),
+        "critic_coef": between(0, 1e6), "critic_depth": between(1, 64), "critic_cells": between(1, SIZE),
+    }
+
     def __post_init__(self) -> None:
+        check_ranges(self)
         check_frames(self.frames, self.num_minibatches)
 
 
@@ -95,13 +123,18 @@ class MixerConfig(TorchRLCommon):
     agent_credit: float = 0.0
     frames: str = "days"  # as IQLConfig.frames
 
-    def __post_init__(self) -> None:
-        check_frames(self.frames, self.num_minibatches)
+    RANGES: ClassVar[dict[str, Range]] = {
+        **TorchRLCommon.RANGES, "memory_size": MEMORY, "tau": above(0, 1), "eps_init": FRACTION,
+        "eps_end": FRACTION, "exploration_fraction": FRACTION, "mixing_embed_dim": between(1, SIZE),
+        "hypernet_hidden": between(0, SIZE, "0: URB's single linear hypernetwork"),
+        "agent_credit": between(0, 1e6, "0: URB's loss"),
+    }
 
+    def __post_init__(self) -> None:
+        check_ranges(self)
+        check_frames(self.frames, self.num_minibatches)
         if self.q_scale not in ("team", "own"):
             raise ConfigError(f"key 'q_scale' is {self.q_scale!r}. Fix: use 'team' (URB) or 'own'.")
-        if self.agent_credit < 0:
-            raise ConfigError(f"key 'agent_credit' is {self.agent_credit}. Fix: use a weight >= 0.")
 
 
 @dataclass(frozen=True)
@@ -121,6 +154,16 @@ class IQLStarConfig:
     normalize_obs: bool = True
     num_envs: int = 1
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "num_episodes": between(1, STEPS), "eps_init": FRACTION, "eps_decay": FRACTION, "eps_min": FRACTION,
+        "buffer_size": MEMORY, "batch_size": between(1, 10_000_000), "lr": LR,
+        "num_epochs": between(1, 10_000),
+        "widths": between(1, SIZE), "update_every": between(1, STEPS), "num_envs": between(1, ENVS),
+    }
+
+    def __post_init__(self) -> None:
+        check_ranges(self)
+
 
 @dataclass(frozen=True)
 class IPPOStarConfig:
@@ -139,6 +182,16 @@ class IPPOStarConfig:
     normalize_obs: bool = True
     num_envs: int = 1
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "num_episodes": between(1, STEPS), "batch_size": between(1, 10_000_000),
+        "update_every": between(1, STEPS), "lr": LR, "num_epochs": between(1, 10_000),
+        "widths": between(1, SIZE), "clip_eps": above(0, 10), "entropy_coef": between(0, 100),
+        "max_grad_norm": above(0, 1e6), "num_envs": between(1, ENVS),
+    }
+
+    def __post_init__(self) -> None:
+        check_ranges(self)
+
 
 @dataclass(frozen=True)
 class BaselineConfig:
@@ -146,3 +199,8 @@ class BaselineConfig:
     (`urb-jax baseline --alg-conf`; it sets the task's training_eps)."""
 
     training_eps: int = 200
+
+    RANGES: ClassVar[dict[str, Range]] = {"training_eps": between(0, 10_000_000)}
+
+    def __post_init__(self) -> None:
+        check_ranges(self)

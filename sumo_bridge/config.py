@@ -20,9 +20,11 @@ Semantics (see docs/sumo_bridge.md for the why):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from urb_jax.city.network import DAY_LIMIT_S
 from urb_jax.core.choices import STUCK_PENALTIES, STUCK_RULES
+from urb_jax.core.ranges import Range, between, check_ranges
 
 
 @dataclass(frozen=True)
@@ -37,15 +39,19 @@ class SumoConfig:
     extra_args: tuple[str, ...] = field(default=())  # appended to SUMO's command line
     shm_dir: str = "/dev/shm"  # where route and tripinfo files live (RAM); falls back to /tmp
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "stuck_time_s": between(1, DAY_LIMIT_S), "tt_offset_s": between(0, 3600, "RouteRL: 2"),
+        "max_sim_time_s": between(1, 7 * 86_400), "poll_every_s": between(1, DAY_LIMIT_S),
+    }
+
     def __post_init__(self) -> None:
+        check_ranges(self)
         if self.stuck_rule not in STUCK_RULES:
             raise ValueError(f"SumoConfig.stuck_rule={self.stuck_rule!r}: use one of {STUCK_RULES}")
         if self.stuck_penalty not in STUCK_PENALTIES:
             raise ValueError(
                 f"SumoConfig.stuck_penalty={self.stuck_penalty!r}: use one of {STUCK_PENALTIES}"
             )
-        if self.stuck_time_s <= 0 or self.poll_every_s <= 0 or self.max_sim_time_s <= 0:
-            raise ValueError("SumoConfig: stuck_time_s, poll_every_s and max_sim_time_s must be > 0")
 
     def sumo_args(self, seed: int) -> list[str]:
         """Options shared by libsumo days and the one-shot CLI reference (besides files)."""

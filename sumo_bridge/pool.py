@@ -23,6 +23,7 @@ from typing import cast
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
+from urb_jax.core.interrupt import ignore_stop_signals
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.sumo_bridge.logs import log_folder, log_tail, redirect_fds
 from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, schedule_days
@@ -31,28 +32,34 @@ from urb_jax.sumo_bridge.types import DayResult
 
 
 def _worker_main(conn: Connection, config: SumoConfig, log_path: str) -> None:
-    """Worker loop: owns one Simulator; SUMO's output goes to the worker's log file."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and kills us
+    """Worker loop: owns one Simulator; SUMO's output goes to the worker's log file. Ctrl-C, SIGTERM
+    and SIGHUP are the parent's to handle (it kills us); a parent gone (EOF, a broken pipe) ends
+    the loop quietly."""
+    ignore_stop_signals()
     with redirect_fds(log_path):
         sim = Simulator(config, console_warnings=True)  # our stdout/stderr already go to the log
-        scenarios: dict[str, Scenario] = {}
-        conn.send(("ready", os.getpid()))
-        while True:
-            try:
-                msg = conn.recv()
-            except EOFError:
-                break
-            if msg[0] == "stop":
-                break
-            _, tid, key, scn, choices, seed, is_cav, next_seed = msg
-            if scn is not None:
-                scenarios[key] = scn
-            try:
-                res = sim.run_day(scenarios[key], choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
-                conn.send(("ok", tid, res))
-            except Exception:
-                conn.send(("err", tid, traceback.format_exc()))
+        with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
+            _serve_days(conn, sim)
         sim.close()
+
+
+def _serve_days(conn: Connection, sim: Simulator) -> None:
+    scenarios: dict[str, Scenario] = {}
+    conn.send(("ready", os.getpid()))
+    while True:
+        msg = conn.recv()
+        if msg[0] == "stop":
+            break
+        _, tid, key, scn, choices, seed, is_cav, next_seed = msg
+        if scn is not None:
+            scenarios[key] = scn
+        try:
+            res = sim.run_day(scenarios[key], choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
+            conn.send(("ok", tid, res))
+        except (BrokenPipeError, ConnectionResetError):
+            raise  # the parent is gone
+        except Exception:
+            conn.send(("err", tid, traceback.format_exc()))
 
 
 class _Worker:

@@ -205,13 +205,17 @@ def test_ctrl_c_restarts_no_worker():
 
 @pytest.mark.slow
 @pytest.mark.sumo
-@pytest.mark.parametrize("presses", [1, 2])
-def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses):
+@pytest.mark.parametrize(("presses", "sig"), [(1, "SIGINT"), (2, "SIGINT"), (1, "SIGTERM"), (1, "SIGHUP")])
+def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses, sig):
     """Before: the first SIGINT was swallowed and the second hung for over a minute. Now one press
-    stops the run (exit 130, the resume command printed, SUMO workers gone); two exit at once."""
+    stops the run (exit 130, the resume command printed, SUMO workers gone); two exit at once.
+    SIGTERM and SIGHUP, sent to the whole group as Slurm and a closing terminal do, stop it alike
+    (exit 143, 129), and the SUMO workers, which leave the signal to the run, print no traceback."""
     import signal
     import subprocess
     import time
+
+    signum = getattr(signal, sig)
 
     hyb = json.loads(Path(confs["hybrid_conf"]).read_text())
     (tmp_path / "hyb.json").write_text(json.dumps({**hyb, "sumo_workers": 2}))
@@ -229,14 +233,17 @@ def test_ctrl_c_stops_a_real_run_within_seconds(confs, tmp_path, presses):
                                               text=True).stdout.split()]
     t0 = time.monotonic()
     for _ in range(presses):
-        os.killpg(proc.pid, signal.SIGINT)  # as a terminal does: the whole foreground group
+        os.killpg(proc.pid, signum)  # as a terminal does: the whole foreground group
         time.sleep(0.3)
     err = proc.communicate(timeout=60)[1]
     took = time.monotonic() - t0
-    assert proc.returncode == 130, err
+    assert proc.returncode == 128 + signum, err
     assert took < 15, took
     if presses == 1:
         assert "Continue with: urb-jax train --resume k" in err and "Traceback" not in err
+        assert f"stopped by {'Ctrl-C' if sig == 'SIGINT' else sig}." in err
+        logs = [p.read_text() for p in (tmp_path / "k").rglob("sumo_worker*.log")]
+        assert len(logs) == 2 and not any("Traceback" in log for log in logs), logs
     else:  # the first press may already have ended the run before the second is handled
         assert "interrupted twice: exiting now" in err or "Continue with: urb-jax train --resume k" in err
     time.sleep(0.5)

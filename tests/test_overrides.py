@@ -69,9 +69,11 @@ def test_unknown_keys_wrong_types_and_bad_values_fail_naming_the_override(tmp_pa
         "alg.lrr=1": ["--set alg.lrr=1", "no key 'lrr'", "Fix: use one of", "lr,"],
         "alg.lr=abc": ["--set alg.lr=abc", "'lr' takes float", "'abc' (str)", "Fix: give a float"],
         "hybrid.num_envs=2.5": ["--set hybrid.num_envs=2.5", "'num_envs' takes int"],
-        "task.ratio_machines=2": ["with --set task.ratio_machines=2", "'ratio_machines' must be in [0, 1]"],
+        "task.ratio_machines=2": ["with --set task.ratio_machines=2", "'ratio_machines' is 2.0. Fix: use a "
+                                  "finite number in [0, 1]"],
         "task.greedy_num_samples=5": ["assignment-sampling experiments", "does not implement"],
-        "task.marginal_cost_coefficient_beta=-1": ["'marginal_cost_beta' must be a number >= 0"],
+        "task.marginal_cost_coefficient_beta=-1": ["'marginal_cost_beta' is -1.0",
+                                                   "in [0, 1000] (URB: 0 to 5)"],
         "task.desc=x": ["no key 'desc'"],
         "foo.lr=1": ["SECTION one of task, env, alg, hybrid"],
     }

@@ -146,7 +146,8 @@ def test_hybrid_config_values_are_validated(tmp_path):
 
     bad = tmp_path / "hyb.json"
     bad.write_text(json.dumps({"num_envs": 0}))
-    with pytest.raises(ConfigError, match=r"hyb.json: key 'num_envs' is 0\. Fix: use an integer >= 1"):
+    with pytest.raises(ConfigError, match=r"hyb.json: key 'num_envs' is 0\. Fix: use an integer in "
+                                          r"\[1, 16384\]"):
         load_json(HybridConfig, bad)
     bad.write_text(json.dumps({"seed_axis": "pmap"}))
     with pytest.raises(ConfigError, match=r"key 'seed_axis' is 'pmap'\. Fix: use one of auto, vmap, map"):

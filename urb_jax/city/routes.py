@@ -313,12 +313,17 @@ def _answer(proc: subprocess.Popen) -> list[ODRoutes | str]:
 
 def _serve() -> None:
     """A worker interpreter: (graph, tasks) from stdin, their routes to stdout (one pickle each).
-    Ctrl-C is the parent's to handle: it stops the workers."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    graph, tasks = pickle.load(sys.stdin.buffer)
-    _init_worker(graph)
-    pickle.dump(list(map(_worker, tasks)), sys.stdout.buffer, protocol=pickle.HIGHEST_PROTOCOL)
-    sys.stdout.buffer.flush()
+    Ctrl-C, SIGTERM and SIGHUP are the parent's to handle: it stops the workers; a parent gone
+    (a closed pipe) ends the worker quietly."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # core.interrupt.STOP_SIGNALS
+        signal.signal(sig, signal.SIG_IGN)
+    try:
+        graph, tasks = pickle.load(sys.stdin.buffer)
+        _init_worker(graph)
+        pickle.dump(list(map(_worker, tasks)), sys.stdout.buffer, protocol=pickle.HIGHEST_PROTOCOL)
+        sys.stdout.buffer.flush()
+    except (EOFError, BrokenPipeError, ConnectionResetError):
+        os._exit(1)  # no traceback, and no flush of the closed stdout at exit
 
 
 def free_flow_times(

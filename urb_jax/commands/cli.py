@@ -36,16 +36,16 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     from urb_jax.core.compile_cache import enable_compile_cache  # imports JAX: after parsing
-    from urb_jax.core.interrupt import InterruptedRunError, handle_interrupts, leave_interrupted
+    from urb_jax.core.interrupt import InterruptedRunError, handle_interrupts, leave_interrupted, stop_cause
 
-    enable_compile_cache()  # every command compiles once per machine, not once per process
     with handle_interrupts():
         try:
+            enable_compile_cache()  # every command compiles once per machine, not once per process
             return int(args.func(args) or 0)
         except InterruptedRunError as exc:
             leave_interrupted(str(exc))  # no interpreter teardown around an XLA call in flight
         except KeyboardInterrupt:
-            leave_interrupted("stopped by Ctrl-C.")
+            leave_interrupted(f"stopped by {stop_cause()}.")
         except UrbJaxError as exc:
             print(f"urb-jax: error: {exc}", file=sys.stderr)
             return 2

@@ -16,7 +16,7 @@ from typing import Any, cast
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from urb_jax.core.paths import cache_dir
+from urb_jax.core.paths import CACHE_ENV, cache_dir, writable_dir
 
 COMPILE_CACHE_ENV = "URB_JAX_COMPILE_CACHE"
 OFF_VALUES = ("0", "off", "false", "no", "none")
@@ -38,7 +38,8 @@ def compile_cache_path() -> Path | None:
 def enable_compile_cache() -> Path | None:
     """Turn the persistent cache on (idempotent; call it before the first compile so that every
     compile is cached); returns the directory in use, None when opted out. A cache directory the
-    user gave JAX itself wins over urb-jax's and its settings are left alone."""
+    user gave JAX itself wins over urb-jax's and its settings are left alone. A folder that cannot
+    be created or written is a UrbJaxError naming it and the fix."""
     current = cast(Any, jax.config).jax_compilation_cache_dir
     if current and current not in _OWNED:
         return Path(current)
@@ -50,7 +51,9 @@ def enable_compile_cache() -> Path | None:
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", MIN_ENTRY_SIZE_BYTES)
     path = path.resolve()
     if current != str(path):
-        path.mkdir(parents=True, exist_ok=True)
+        writable_dir(path, f"the compilation cache (${COMPILE_CACHE_ENV}, else <{CACHE_ENV} or "
+                     "~/.cache/urb-jax>/jax)", f"set {COMPILE_CACHE_ENV} to a folder you can write to, "
+                     f"or {COMPILE_CACHE_ENV}=off")
         _use(str(path))
     return path
 

@@ -195,14 +195,42 @@ def _apply_overrides(cls: type, data: Mapping[str, Any], overrides: Sequence[Ove
     return out
 
 
+class DuplicateKeyError(ValueError):
+    """A JSON object names one key twice (json.loads would keep the last value without a word)."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    seen: set[str] = set()
+    for key, _ in pairs:
+        if key in seen:
+            raise DuplicateKeyError(key)
+        seen.add(key)
+    return dict(pairs)
+
+
+def loads_strict(text: str, source: object) -> Any:
+    """JSON `text` where an object that gives one key twice is a ConfigError naming `source` and the
+    key (plain json.loads keeps the last value); invalid JSON raises json.JSONDecodeError, as
+    json.loads does. What every config and suite file the tool reads is parsed with."""
+    try:
+        return json.loads(text, object_pairs_hook=_unique_keys)
+    except DuplicateKeyError as exc:
+        raise ConfigError(f"{source}: key '{exc.args[0]}' is given twice in one object (JSON would keep the "
+                          "last value and ignore the first). Fix: keep one of them.") from None
+
+
 def read_json(path: Path) -> dict[str, Any]:
-    """The JSON object in `path`; a missing file, bad JSON or a non-object are ConfigErrors."""
+    """The JSON object in `path`; a missing file, bad JSON, a key given twice or a non-object are
+    ConfigErrors."""
     if not path.is_file():
         raise ConfigError(f"{path}: config file not found.")
     try:
-        data = json.loads(path.read_text())
+        data = loads_strict(path.read_text(), path)
     except json.JSONDecodeError as exc:
         raise ConfigError(f"{path}: not valid JSON ({exc}).") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read it ({exc}). Fix: check the file's permissions and that it "
+                          "is a UTF-8 JSON file.") from exc
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: must hold a JSON object.")
     return data

@@ -1,6 +1,9 @@
 """Ctrl-C, the way a long run should take it: the first SIGINT stops the run (a KeyboardInterrupt
 where the main thread is, turned into `InterruptedRunError` by the run, which names the resume command);
 a second one, while the first is being handled, kills this process's children and exits at once.
+SIGTERM (Slurm's scancel and time limit, systemd, kill) and SIGHUP (a closed terminal or SSH session)
+are taken the same way (`STOP_SIGNALS`): the run stops cleanly with its resume line, and the process
+exits with the shell's code for the signal, 128 + its number (130, 143, 129: `exit_code`).
 
 Also the one place that recognises a full disk in an exception (`no_space`), since orbax, pyarrow
 and numpy each wrap the OS error differently.
@@ -22,6 +25,8 @@ from typing import NoReturn
 from urb_jax.core.errors import UrbJaxError
 
 EXIT_INTERRUPTED = 130  # the shell's code for a process ended by SIGINT
+# The signals that stop a run cleanly, and how the messages name them.
+STOP_SIGNALS = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM", signal.SIGHUP: "SIGHUP"}
 
 
 class InterruptedRunError(UrbJaxError):
@@ -34,6 +39,7 @@ class DiskFullError(UrbJaxError):
 
 GRACE_S = 3.0  # after a first Ctrl-C, how long the main thread has to stop cleanly
 _presses = 0
+_received: int = signal.SIGINT  # the first stop signal received (Ctrl-C when the stop is in-process)
 _stop_message: Callable[[], str] | None = None
 
 
@@ -52,6 +58,17 @@ def at_hard_exit(hook: Callable[[], object]) -> None:
     _exit_hooks.append(hook)
 
 
+def stop_cause() -> str:
+    """How the stop is named: 'Ctrl-C', 'SIGTERM' or 'SIGHUP' (the first stop signal received)."""
+    return STOP_SIGNALS.get(signal.Signals(_received), "Ctrl-C")
+
+
+def exit_code() -> int:
+    """The exit code of a stopped run: 128 + the signal's number, as the shell reports a process the
+    signal ended (so Slurm, systemd and scripts see what stopped it)."""
+    return 128 + int(_received)
+
+
 def _hard_exit(why: str) -> NoReturn:
     """Leave now, as a kill would (a run resumes from any instant): children first, no teardown
     (an XLA computation may still be in flight, and interpreter teardown around it can crash)."""
@@ -67,21 +84,31 @@ def _hard_exit(why: str) -> NoReturn:
     for child in multiprocessing.active_children():  # SUMO workers: never left behind
         with contextlib.suppress(OSError):
             os.kill(child.pid, signal.SIGKILL)  # type: ignore[arg-type]
-    os._exit(EXIT_INTERRUPTED)
+    os._exit(exit_code())
 
 
 def leave_interrupted(message: str) -> NoReturn:
-    """End the process after a handled Ctrl-C: the message, children killed, exit code 130."""
+    """End the process after a handled stop signal: the message, children killed, exit code 128 +
+    the signal's number (130 for Ctrl-C)."""
     on_stop(None)
     _hard_exit(message)
     raise AssertionError  # _hard_exit does not return
 
 
-def _on_sigint(signum: int, frame: FrameType | None) -> None:
-    """The Python-level handler (runs in the main thread between bytecodes)."""
+def _on_stop(signum: int, frame: FrameType | None) -> None:
+    """The Python-level handler of every stop signal (runs in the main thread between bytecodes):
+    a KeyboardInterrupt, which every layer already handles as a clean stop."""
+    _note(signum)
     if _presses <= 1:
         raise KeyboardInterrupt
     _hard_exit("interrupted twice: exiting now.")
+
+
+def _note(signum: int) -> None:
+    """Remember the first stop signal (its name and exit code); SIGINT's is the default."""
+    global _received
+    if _presses == 0:
+        _received = signum
 
 
 def _watch(read_fd: int) -> None:
@@ -96,37 +123,50 @@ def _watch(read_fd: int) -> None:
 def _count_presses(data: bytes) -> None:
     global _presses
     for sig in data:
-        if sig != signal.SIGINT:
+        if sig not in STOP_SIGNALS:
             continue
+        if _presses == 0:
+            _note(sig)
         _presses += 1
         if _presses > 1:
             _hard_exit("interrupted twice: exiting now.")
-        os.write(2, b"\nurb-jax: stopping (Ctrl-C again to exit at once) ...\n")
-        force = threading.Timer(GRACE_S, _hard_exit, ("stopped by Ctrl-C (forced: the run was inside "
-                                                      "a computation).",))
+        why = "" if sig == signal.SIGINT else f" on {stop_cause()}"
+        with contextlib.suppress(OSError):  # after SIGHUP the terminal may be gone
+            os.write(2, f"\nurb-jax: stopping{why} (Ctrl-C again to exit at once) ...\n".encode())
+        force = threading.Timer(GRACE_S, _hard_exit, (f"stopped by {stop_cause()} (forced: the run was "
+                                                      "inside a computation).",))
         force.daemon = True
         force.start()
 
 
 @contextlib.contextmanager
 def handle_interrupts() -> Iterator[None]:
-    """Install the Ctrl-C handling for the block (main thread only; elsewhere a no-op)."""
-    global _presses
+    """Install the handling of Ctrl-C, SIGTERM and SIGHUP for the block (main thread only;
+    elsewhere a no-op)."""
+    global _presses, _received
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     read_fd, write_fd = os.pipe()
     os.set_blocking(write_fd, False)
-    previous = signal.signal(signal.SIGINT, _on_sigint)
+    previous = {sig: signal.signal(sig, _on_stop) for sig in STOP_SIGNALS}
     previous_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
-    _presses = 0
+    _presses, _received = 0, signal.SIGINT
     threading.Thread(target=_watch, args=(read_fd,), daemon=True, name="urb-jax-ctrl-c").start()
     try:
         yield
     finally:
         signal.set_wakeup_fd(previous_fd)
-        signal.signal(signal.SIGINT, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         os.close(write_fd)
+
+
+def ignore_stop_signals() -> None:
+    """In a worker process (SUMO, route sampling): the parent takes Ctrl-C, SIGTERM and SIGHUP (a
+    terminal, Slurm and systemd send them to every process of the job) and stops its workers itself."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
 
 
 def no_space(exc: BaseException) -> bool:

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import errno
 import os
+import tempfile
 from pathlib import Path
 from typing import cast
 
 from urb_jax import networks
+from urb_jax.core.errors import UrbJaxError
 
 NETWORKS_ENV = "URB_JAX_NETWORKS"
 CACHE_ENV = "URB_JAX_CACHE"
@@ -43,8 +46,46 @@ def networks_search_path(networks_dir: str | os.PathLike | None = None) -> list[
 
 
 def cache_dir() -> Path:
-    """Route/scenario cache: $URB_JAX_CACHE, else ~/.cache/urb-jax."""
-    env = os.environ.get(CACHE_ENV)
-    root = Path(env).expanduser() if env else Path.home() / ".cache" / "urb-jax"
-    root.mkdir(parents=True, exist_ok=True)
-    return root
+    """Route/scenario cache: $URB_JAX_CACHE, else ~/.cache/urb-jax; created and writable, else a
+    UrbJaxError naming the folder and the fix (an empty HOME is refused: it is no home folder, and
+    Path.home() would make it the filesystem root)."""
+    env = os.environ.get(CACHE_ENV, "").strip()
+    if env:
+        return writable_dir(Path(env).expanduser(), f"urb-jax's cache folder (${CACHE_ENV})",
+                            f"set {CACHE_ENV} to a folder you can write to")
+    if "HOME" in os.environ and not os.environ["HOME"].strip():
+        raise UrbJaxError("HOME is set but empty, so urb-jax has no home folder for its cache "
+                          f"(~/.cache/urb-jax). Fix: set HOME to your home folder, or {CACHE_ENV} to a "
+                          "folder for urb-jax's caches.")
+    return writable_dir(Path.home() / ".cache" / "urb-jax", "urb-jax's cache folder (~/.cache/urb-jax)",
+                        f"make it writable, or set {CACHE_ENV} to a folder you can write to")
+
+
+_writable: set[Path] = set()  # folders writable_dir has checked in this process
+
+
+def writable_dir(path: Path, what: str, fix: str) -> Path:
+    """`path`, created with its parents, after a probe file shows it can be written; else a
+    UrbJaxError naming `what`, the path, the OS's reason (a file in the way, read-only, no
+    permission) and `fix`. Checked once per process."""
+    if path in _writable:
+        return path
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise UrbJaxError(f"{path}: {what} cannot be created or written ({os_reason(exc, path)}). "
+                          f"Fix: {fix}.") from None
+    _writable.add(path)
+    return path
+
+
+def os_reason(exc: OSError, path: Path) -> str:
+    """Why the OS refused a folder, in words: a file in the way, a read-only filesystem, ..."""
+    if isinstance(exc, FileExistsError | NotADirectoryError) or (path.exists() and not path.is_dir()):
+        blocker = next((p for p in (path, *path.parents) if p.exists() and not p.is_dir()), None)
+        return f"a file is in the way: {blocker}" if blocker is not None else exc.strerror or str(exc)
+    if exc.errno == errno.EROFS:
+        return "the filesystem is read-only"
+    return exc.strerror or str(exc)

@@ -11,11 +11,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
+from urb_jax.city.network import DAY_LIMIT_S
 from urb_jax.city.routes import RouteParams
 from urb_jax.core.configio import Loaded, Override, find_config, from_dict, load_resolved
 from urb_jax.core.errors import ConfigError
+from urb_jax.core.ranges import DAYS, FRACTION, Range, above, between, check_ranges
 from urb_jax.core.urb_keys import ENV_FAMILY, TASK_FAMILY
 from urb_jax.game.humans import HumanParams
 from urb_jax.game.observations import OBSERVATION_TYPES
@@ -64,21 +66,24 @@ class TaskConfig:
     # beta x the delay it adds to everyone else (game.rewards.marginal_cost_rewards); 0: none
     marginal_cost_beta: float = 0.0
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "ratio_machines": FRACTION, "human_learning_episodes": between(0, DAYS), "test_eps": between(0, DAYS),
+        "training_eps": between(0, DAYS), "av_behavior": between(-1000, 1000, "reward weights"),
+        "human_alpha": between(0, 100, "gawron, weighted: a share in [0, 1]; culo: a step"),
+        "human_beta": between(-100, 100, "URB: -1.5"), "human_beta_randomness": between(0, 100),
+        "gamma_c": between(0, 10, "relative"), "gamma_u": between(0, 10, "relative"),
+        "epsilon": between(0, 10, "relative noise"), "delta": FRACTION,
+        "demand_scale": above(0, 100, "agents x demand_scale vehicles a day; URB's tasks: 0.5 to 2"),
+        "demand_jitter_s": between(0, DAY_LIMIT_S),
+        "marginal_cost_beta": between(0, 1000, "URB: 0 to 5"),
+    }
+
     def __post_init__(self) -> None:
         if isinstance(self.av_behavior, list):
             object.__setattr__(self, "av_behavior", tuple(float(v) for v in self.av_behavior))
-        if not 0.0 <= self.ratio_machines <= 1.0:
-            raise ConfigError(f"key 'ratio_machines' must be in [0, 1], got {self.ratio_machines}.")
-        for key in ("human_learning_episodes", "test_eps", "training_eps", "demand_jitter_s"):
-            if getattr(self, key) < 0:
-                raise ConfigError(f"key '{key}' must be >= 0, got {getattr(self, key)}.")
-        if self.demand_scale <= 0.0:
-            raise ConfigError(f"key 'demand_scale' must be > 0, got {self.demand_scale}.")
+        check_ranges(self)
         if self.demand_mode not in DEMAND_MODES:
             raise ConfigError(f"key 'demand_mode' must be one of {DEMAND_MODES}, got {self.demand_mode!r}.")
-        if not 0.0 <= self.marginal_cost_beta < float("inf"):
-            raise ConfigError(f"key 'marginal_cost_beta' must be a number >= 0 (URB: 0 to 5), got "
-                              f"{self.marginal_cost_beta}.")
         if self.reward_credit not in CREDITS:
             raise ConfigError(f"key 'reward_credit' must be one of {CREDITS}, got {self.reward_credit!r}.")
         behaviour_coefficients(self.av_behavior)  # validates name / 4-tuple
@@ -118,7 +123,15 @@ class EnvConfig:
     plot_every: int = 50  # accepted, unused
     use_clustered_routes: bool = False
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "number_of_paths": between(1, 64, "URB: 4"), "path_gen_beta": between(-1000, 1000, "URB: -5"),
+        "num_samples": between(1, 100_000), "path_gen_workers": between(1, 1024),
+        "save_every": between(1, DAYS), "smooth_by": between(-1, DAYS, "URB: -1, no smoothing"),
+        "plot_every": between(1, DAYS),
+    }
+
     def __post_init__(self) -> None:
+        check_ranges(self)
         if self.observations in MISSING_OBSERVATIONS:
             raise ConfigError(
                 f"key 'observations' = {self.observations!r}: {MISSING_OBSERVATIONS[self.observations]}, "
@@ -131,8 +144,6 @@ class EnvConfig:
                 "key 'use_clustered_routes' = true: URB's clustered route sets (pre-generated per network "
                 "under networks/<net>/clustered_routes, read by URB's scripts/*_clusters.py), which urb-jax "
                 "does not implement (its routes are JanuX's sampler, docs/networks.md).")
-        if self.number_of_paths < 1 or self.num_samples < 1:
-            raise ConfigError("keys 'number_of_paths' and 'num_samples' must be >= 1.")
 
     def route_params(self) -> RouteParams:
         return RouteParams(number_of_paths=self.number_of_paths, beta=self.path_gen_beta,

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from urb_jax.core.configio import configs_dir
+from urb_jax.core.configio import configs_dir, loads_strict
 from urb_jax.core.errors import ConfigError
 from urb_jax.reporting import verdicts as V  # noqa: N812
 from urb_jax.reporting.comparable import comparable_metrics, hybrid_note, is_hybrid
@@ -68,8 +68,8 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
     formed, names its source and holds on the paper's own numbers where the paper prints them."""
     path = Path(path) if path else paper_file()
     try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        data = loads_strict(path.read_text(), path)
+    except (OSError, ValueError) as exc:  # ValueError: bad JSON or UTF-8
         raise ConfigError(f"{path}: cannot read the paper's numbers ({exc}). "
                           "Fix: restore the file.") from None
     for i, c in enumerate(data.get("contradictions", [])):

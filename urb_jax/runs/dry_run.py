@@ -18,7 +18,13 @@ from urb_jax.algorithms.registry import algorithm
 from urb_jax.core.configio import Loaded, in_section
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.reporting.urb_names import train_names
-from urb_jax.runs.folder import CONFIG_FILE, ResultsExistError, check_exp_id, train_run_names
+from urb_jax.runs.folder import (
+    CONFIG_FILE,
+    ResultsExistError,
+    check_exp_id,
+    check_results_root,
+    train_run_names,
+)
 from urb_jax.runs.request import TrainRequest
 from urb_jax.runs.round_log import check_logger
 from urb_jax.runs.setup import TrainSetup, check_runnable, load_setup
@@ -58,6 +64,7 @@ def _folders(req: TrainRequest, setup: TrainSetup) -> list[Path]:
     names = train_run_names(req.exp_id, req.alg, req.mode, req.net or "", setup.task_path.stem,
                             list(req.seeds))
     folders = [Path(req.results_dir) / check_exp_id(name) for name in names]
+    check_results_root(req.results_dir)
     for folder in folders:
         if folder.exists() and not req.overwrite:
             raise ResultsExistError(f"{folder}: results for experiment id '{folder.name}' already exist. "

@@ -24,6 +24,7 @@ import pandas as pd
 from urb_jax.core.atomic import umask, write_bytes, write_json
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import at_hard_exit
+from urb_jax.core.paths import os_reason
 from urb_jax.reporting.records import remove_parts, write_plots, write_run_metrics
 from urb_jax.reporting.urb_names import phase_keys
 
@@ -107,13 +108,11 @@ def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = F
     and `overwrite` removes only a urb-jax run (a folder with exp_config.json) that no live
     process is writing."""
     path = Path(root) / check_exp_id(exp_id)
-    if Path(root).exists() and not Path(root).is_dir():
-        raise UrbJaxError(f"--results-dir {root}: is a file, not a folder. Fix: pass a folder.")
+    check_results_root(root)
     try:
         lock_run(path)
-    except PermissionError as exc:
-        raise UrbJaxError(f"--results-dir {root}: cannot write there ({exc.strerror}). Fix: pass a "
-                          "folder you can write to.") from None
+    except OSError as exc:
+        raise _unwritable(root, exc) from None
     if path.exists():
         if not overwrite:
             raise ResultsExistError(
@@ -126,11 +125,40 @@ def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = F
         shutil.rmtree(path)
     for stale in Path(root).glob(f".{exp_id}.new-*"):  # ours, left by a kill inside this function
         shutil.rmtree(stale, ignore_errors=True)
-    new = Path(tempfile.mkdtemp(prefix=f".{exp_id}.new-", dir=root))
+    try:
+        new = Path(tempfile.mkdtemp(prefix=f".{exp_id}.new-", dir=root))
+    except OSError as exc:
+        raise _unwritable(root, exc) from None
     os.chmod(new, 0o777 & ~umask())
     write_json(new / CONFIG_FILE, {"status": "created"})  # replaced by the run's own before any SUMO day
     new.rename(path)  # the folder appears with its exp_config.json: always a urb-jax run
     return path
+
+
+def check_results_root(root: str | os.PathLike) -> None:
+    """--results-dir `root` is a folder, or can be made one, that this process can write to: its
+    nearest existing folder is a folder (no file in the way) on a writable filesystem and
+    permitted. A dry run checks this without creating anything; a run checks it first."""
+    root = Path(root)
+    existing = next((p for p in (root, *root.parents) if p.exists()), Path("/"))
+    if not existing.is_dir():
+        what = "is a file, not a folder" if existing == root else f"cannot be created: {existing} is a file"
+        raise UrbJaxError(f"--results-dir {root}: {what}. Fix: pass a folder (or one that can be created).")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UrbJaxError(f"--results-dir {root}: {existing} is not writable by this user. Fix: pass a "
+                          "folder you can write to.")
+    try:
+        probe = os.statvfs(existing)
+    except OSError:
+        return
+    if probe.f_flag & os.ST_RDONLY:
+        raise UrbJaxError(f"--results-dir {root}: {existing} is on a read-only filesystem. Fix: pass a "
+                          "folder you can write to.")
+
+
+def _unwritable(root: str | os.PathLike, exc: OSError) -> UrbJaxError:
+    return UrbJaxError(f"--results-dir {root}: cannot create or write the run's folder there "
+                       f"({os_reason(exc, Path(root))}). Fix: pass a folder you can write to.")
 
 
 SOURCE_ROOT = Path(__file__).resolve().parents[2]  # the checkout this process imported urb_jax from
@@ -218,10 +246,26 @@ def write_outputs(folder: Path, human_days: int, training_days: int,
     return metrics, phase_keys(records, human_days)
 
 
+def read_run_config(folder: Path) -> dict[str, Any]:
+    """The run's exp_config.json; unreadable, not JSON (truncated) or not an object: a UrbJaxError
+    that names the file and what can be done (a run cannot go on without its record)."""
+    path = folder / CONFIG_FILE
+    try:
+        config = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:  # ValueError: bad JSON or UTF-8
+        raise UrbJaxError(f"{path}: the run's record cannot be read ({exc}); it was damaged (truncated, "
+                          "or edited by hand), so the run cannot be resumed or reused. Fix: restore the "
+                          "file from a backup, or start the run again with the same command and "
+                          "--overwrite.") from None
+    if not isinstance(config, dict):
+        raise UrbJaxError(f"{path}: the run's record is not a JSON object. Fix: restore the file from a "
+                          "backup, or start the run again with the same command and --overwrite.")
+    return config
+
+
 def run_status(folder: Path) -> str | None:
     """exp_config.json's status ("created", ..., "done": `mark_done`); None without the file."""
-    cfg = folder / CONFIG_FILE
-    return json.loads(cfg.read_text()).get("status") if cfg.is_file() else None
+    return read_run_config(folder).get("status") if (folder / CONFIG_FILE).is_file() else None
 
 
 def seed_groups_of(results_dir: Path, names: list[str]) -> list[list[str]]:
@@ -231,7 +275,7 @@ def seed_groups_of(results_dir: Path, names: list[str]) -> list[list[str]]:
     for name in names:
         if not any(name in g for g in groups):
             config = results_dir / name / CONFIG_FILE
-            groups.append(json.loads(config.read_text()).get("group", [name]) if config.is_file() else [name])
+            groups.append(read_run_config(config.parent).get("group", [name]) if config.is_file() else [name])
     return groups
 
 

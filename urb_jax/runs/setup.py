@@ -19,7 +19,7 @@ from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.choices import DEFAULT_NETWORK
 from urb_jax.core.configio import in_section, to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
-from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop
+from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop, stop_cause
 from urb_jax.core.version import __version__
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.runs.folder import (
@@ -117,14 +117,15 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
 
 @contextlib.contextmanager
 def stops_cleanly(folders: list[Path], resumable: bool = True) -> Iterator[None]:
-    """Ctrl-C and a full disk end a train run with the message that says what is kept and how to
-    go on (`urb-jax train --resume`), instead of a traceback; the executor is closed by then. A
-    forced stop (Ctrl-C inside a long jitted call, or pressed twice) prints the same line."""
+    """Ctrl-C, SIGTERM, SIGHUP (`core.interrupt`) and a full disk end a train run with the message
+    that says what is kept and how to go on (`urb-jax train --resume`), instead of a traceback; the
+    executor is closed by then. A forced stop (a signal inside a long jitted call, or sent twice)
+    prints the same line."""
     on_stop(lambda: _resume_hint(folders, resumable))
     try:
         yield
     except KeyboardInterrupt:
-        raise InterruptedRunError(f"stopped by Ctrl-C. {_resume_hint(folders, resumable)}") from None
+        raise InterruptedRunError(f"stopped by {stop_cause()}. {_resume_hint(folders, resumable)}") from None
     except Exception as exc:  # orbax and pyarrow wrap the OS error in their own types
         if not no_space(exc):
             raise

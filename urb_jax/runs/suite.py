@@ -23,7 +23,7 @@ from typing import Any
 import pandas as pd
 
 from urb_jax.core.atomic import write_bytes, write_text
-from urb_jax.core.configio import find_config
+from urb_jax.core.configio import find_config, loads_strict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.reporting.leaderboard import collect_folders
 from urb_jax.reporting.paper import (
@@ -340,8 +340,8 @@ def load_suite(path: str | Path) -> SuiteSpec:
     BaselineRequest's fields); unique ids."""
     path = Path(path)
     try:
-        raw = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        raw = loads_strict(path.read_text(), path)
+    except (OSError, ValueError) as exc:  # ValueError: bad JSON or UTF-8
         raise ConfigError(f"{path}: cannot read a suite file ({exc}). Fix: pass a JSON file with "
                           '{"title": ..., "runs": [{"kind": "train", "id": ..., "args": {...}}]}.') from None
     unknown = set(raw) - {"title", "preamble", "runs"}

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -32,6 +31,7 @@ from urb_jax.runs.folder import (
     lock_run,
     machine,
     mark_done,
+    read_run_config,
     run_status,
     seed_groups_of,
     source_commit,
@@ -180,7 +180,7 @@ def resume_train(req: ResumeRequest, *, executor: DayExecutor | None = None) -> 
     if not (folder / CONFIG_FILE).is_file():
         raise UrbJaxError(f"{folder}: no urb-jax run '{req.exp_id}' here (no {CONFIG_FILE}). Fix: pass the "
                           f"id of a run in --results-dir (`ls {results_dir}`), or the --results-dir it used.")
-    config = json.loads((folder / CONFIG_FILE).read_text())
+    config = read_run_config(folder)
     if "train_args" not in config:
         raise UrbJaxError(f"{folder}: the run was stopped before its first SUMO day (or is not a train run): "
                           "there is nothing to resume. Fix: run the same command again with --overwrite.")
@@ -201,7 +201,7 @@ def _resume_group(group: list[str], resume: ResumeRequest, executor: DayExecutor
     for f in folders:
         lock_run(f)
     log_run_to(folders[0])
-    configs = [json.loads((f / CONFIG_FILE).read_text()) for f in folders]
+    configs = [read_run_config(f) for f in folders]
     recorded = configs[0]["train_args"]
     check_resume_overrides(folders[0], recorded.get("overrides") or [], resume.overrides)
     check_logger(resume.log or recorded.get("log"))

@@ -2,15 +2,20 @@
 
 A round checkpoint is `checkpoints/round_NNNNN/` in the first folder of a seed group:
 `state/` (orbax, the group's arrays as numbered leaves), `sumo_days.npz` (every SUMO day so far,
-per seed) and `meta.json`, written last, so a directory with `meta.json` is complete. Older
-checkpoints are removed once the new one is complete; a partial one (no `meta.json`: a kill or a full
-disk while writing) is ignored by a resume and replaced.
+per seed) and `meta.json`, written last, so a directory with `meta.json` is complete. `meta.json`
+records the sha256 of every other file of the checkpoint (`digests`); a resume verifies them before
+it reads anything, and a checkpoint whose files do not match (bit rot, a copy cut short, an edit) is
+named, set aside as `damaged_round_NNNNN/`, and the previous one is used: the last two rounds are
+kept (older ones are removed once the new one is complete). A partial one (no `meta.json`: a kill or
+a full disk while writing) is ignored by a resume and replaced.
 """
 
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
+import logging
 import shutil
 from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass
@@ -22,9 +27,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.core.atomic import write_json, write_npz
+from urb_jax.core.errors import UrbJaxError
 from urb_jax.surrogate.calibrate import SumoSample
 
 CKPT_DIR = "checkpoints"
+DAMAGED_PREFIX = "damaged_"  # a checkpoint whose files failed their digests, kept for inspection
+log = logging.getLogger(__name__)
 
 
 def save_checkpoint(path: str | Path, tree: Any) -> Path:
@@ -85,10 +93,37 @@ def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: Ro
     _check_space(d, sum(a.nbytes for a in (*leaves.values(), *arrays.values())))
     save_checkpoint(d / "state", leaves)
     write_npz(d / "sumo_days.npz", **arrays)
-    write_json(d / "meta.json", asdict(meta))
+    write_json(d / "meta.json", {**asdict(meta), "digests": file_digests(d)})
+    older = sorted(int(p.name.split("_")[1]) for p in (folder / CKPT_DIR).glob("round_*")
+                   if p != d and (p / "meta.json").is_file() and int(p.name.split("_")[1]) < meta.rounds_done)
+    keep = {*keep, *older[-1:]}  # the previous complete one: the fallback of a damaged newest one
     for old in (folder / CKPT_DIR).glob("round_*"):
         if old != d and int(old.name.split("_")[1]) not in keep:
             shutil.rmtree(old, ignore_errors=True)
+
+
+def file_digests(d: Path) -> dict[str, str]:
+    """sha256 of every file under checkpoint `d` but meta.json, by path relative to `d`."""
+    return {p.relative_to(d).as_posix(): _sha256(p) for p in sorted(d.rglob("*"))
+            if p.is_file() and p.name != "meta.json"}
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        while chunk := f.read(1 << 20):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def damaged_files(ckpt: Path, meta: dict[str, Any]) -> list[str]:
+    """The files of `ckpt` that are missing, extra or differ from meta.json's digests (none: a
+    checkpoint from before digests, which is trusted as it was)."""
+    recorded = meta.get("digests")
+    if recorded is None:
+        return []
+    now = file_digests(ckpt)
+    return sorted(name for name in {*recorded, *now} if recorded.get(name) != now.get(name))
 
 
 def _check_space(d: Path, nbytes: int) -> None:
@@ -108,16 +143,47 @@ def kept_checkpoints(folder: Path) -> list[int]:
     return sorted(int(p.name.split("_")[1]) for p in root.glob("round_*") if (p / "meta.json").is_file())
 
 
+def verified_checkpoint(folder: Path) -> tuple[int, Path] | None:
+    """(rounds done, dir) of the newest complete checkpoint whose files match their digests. A
+    damaged one is named (a warning: run.log) and moved aside to damaged_round_NNNNN/, and the one
+    before it is tried; all damaged is a UrbJaxError naming them."""
+    damaged = []
+    while (found := latest_checkpoint(folder)) is not None:
+        ckpt = found[1]
+        try:
+            bad = damaged_files(ckpt, json.loads((ckpt / "meta.json").read_text()))
+        except ValueError as exc:  # meta.json itself is not JSON
+            bad = [f"meta.json ({exc})"]
+        if not bad:
+            return found
+        damaged.append(f"{ckpt}: {', '.join(bad)}")
+        aside = ckpt.with_name(f"{DAMAGED_PREFIX}{ckpt.name}")
+        shutil.rmtree(aside, ignore_errors=True)
+        ckpt.rename(aside)
+        log.warning("%s: damaged checkpoint (%s do(es) not match the digests in its meta.json); moved to "
+                    "%s, resuming from the checkpoint before it, if any", ckpt, ", ".join(bad), aside.name)
+    if damaged:
+        raise UrbJaxError(f"{folder}: every checkpoint is damaged ({'; '.join(damaged)}; moved aside as "
+                          f"{DAMAGED_PREFIX}round_*). Fix: start the run again with the same command and "
+                          "--overwrite.")
+    return None
+
+
 def restore_round(folder: Path, target: Any, seeds: Sequence[int], rounds_done: int | None = None
                   ) -> tuple[Any, list[SumoSample], RoundMeta]:
-    """The complete checkpoint in `folder` after `rounds_done` rounds (None: the newest): (state
-    shaped like `target`, each seed's SUMO days, meta); raises RuntimeError if there is none or it
-    holds other seeds."""
+    """The checkpoint in `folder` after `rounds_done` rounds (None: the newest whose files match their
+    digests, `verified_checkpoint`): (state shaped like `target`, each seed's SUMO days, meta);
+    raises RuntimeError if there is none or it holds other seeds, UrbJaxError if the one asked for
+    is damaged."""
     if rounds_done is None:
-        found = latest_checkpoint(folder)
+        found = verified_checkpoint(folder)
     else:
-        kept = rounds_done in kept_checkpoints(folder)
-        found = (rounds_done, folder / CKPT_DIR / f"round_{rounds_done:05d}") if kept else None
+        ckpt = folder / CKPT_DIR / f"round_{rounds_done:05d}"
+        found = (rounds_done, ckpt) if rounds_done in kept_checkpoints(folder) else None
+        bad = [] if found is None else damaged_files(ckpt, json.loads((ckpt / "meta.json").read_text()))
+        if bad:
+            raise UrbJaxError(f"{ckpt}: damaged ({', '.join(bad)} do(es) not match the digests in its "
+                              "meta.json). Fix: test another kept round.")
     if found is None:
         raise RuntimeError(f"{folder}: no checkpoint to resume from" if rounds_done is None else
                            f"{folder}: no complete checkpoint after round {rounds_done}")

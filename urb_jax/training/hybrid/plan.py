@@ -7,13 +7,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 from urb_jax.algorithms.configs import IPPOStarConfig, IQLConfig, IQLStarConfig, MixerConfig, PPOConfig
 from urb_jax.algorithms.learner import Learner
 from urb_jax.algorithms.registry import algorithm
 from urb_jax.core.configio import Loaded, Override, find_config, load_resolved
 from urb_jax.core.errors import ConfigError
+from urb_jax.core.ranges import DAYS, ENVS, STEPS, WORKERS, Range, above, between, check_ranges
 from urb_jax.game.env import RoutingEnv
 from urb_jax.surrogate.calibrate import ROUTE_BIAS_PRIOR_DAYS
 
@@ -53,28 +54,26 @@ class HybridConfig:
     # between rounds keeps the first round that reaches it; 0 keeps the start, the human phase's end).
     keep_checkpoints_at: tuple[int, ...] = ()
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "train_days": between(1, DAYS), "num_envs": between(1, ENVS),
+        "surrogate_days_per_round": between(0, DAYS), "sumo_days_per_round": between(0, 100_000),
+        "sumo_updates": between(0, 10_000), "sumo_workers": between(1, WORKERS),
+        "calib_human_days": between(0, 100_000), "calib_varied_days": between(0, 100_000),
+        "calib_steps": between(0, STEPS), "human_surrogate_days": between(0, DAYS),
+        "refit_days": between(1, 100_000), "refit_steps": between(0, STEPS),
+        "day_timeout_s": above(0, 7 * 86_400, "a week"), "max_vmapped_seeds": between(1, WORKERS),
+        "route_bias_prior_days": between(0, DAYS), "keep_checkpoints_at": between(0, DAYS),
+    }
+
     def __post_init__(self) -> None:
         """Budgets and round sizes that cannot run are refused before any SUMO day."""
-        at_least = {"train_days": 1, "num_envs": 1, "sumo_workers": 1, "max_vmapped_seeds": 1,
-                    "surrogate_days_per_round": 0, "sumo_days_per_round": 0, "sumo_updates": 0,
-                    "calib_human_days": 0, "calib_varied_days": 0, "calib_steps": 0, "refit_days": 1,
-                    "human_surrogate_days": 0,
-                    "refit_steps": 0}
-        for key, low in at_least.items():
-            if getattr(self, key) < low:
-                raise ConfigError(f"key '{key}' is {getattr(self, key)}. Fix: use an integer >= {low}.")
+        check_ranges(self)
         if self.surrogate_days_per_round + self.sumo_days_per_round < 1:
             raise ConfigError("keys 'surrogate_days_per_round' and 'sumo_days_per_round' are both 0: a round "
                               "would train on nothing. Fix: make one of them positive.")
         if self.seed_axis not in SEED_AXES:
             raise ConfigError(f"key 'seed_axis' is {self.seed_axis!r}. Fix: use one of "
                               f"{', '.join(SEED_AXES)}.")
-        if any(d < 0 for d in self.keep_checkpoints_at):
-            raise ConfigError(f"key 'keep_checkpoints_at' is {list(self.keep_checkpoints_at)}. Fix: list "
-                              "training-day counts >= 0.")
-        if self.day_timeout_s <= 0 or self.route_bias_prior_days < 0:
-            raise ConfigError("key 'day_timeout_s' must be > 0 and 'route_bias_prior_days' >= 0. "
-                              "Fix: set them so.")
 
     @property
     def bias_prior(self) -> float | None:

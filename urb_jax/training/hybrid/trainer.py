@@ -39,6 +39,7 @@ from urb_jax.surrogate.model import Static
 from urb_jax.training.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
 from urb_jax.training.human_phase import HumanPhase, calibrate
 from urb_jax.training.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
+from urb_jax.training.hybrid.diverged import check_learner
 from urb_jax.training.hybrid.fns import ActFn, Runner, TrainerFns, build_fns, maps_seeds
 from urb_jax.training.hybrid.memory import check_fits
 from urb_jax.training.hybrid.plan import (
@@ -278,6 +279,7 @@ class HybridTrainer:
             self.surrogate_leg(k_sur, rows)
         if g.plan.sumo_days:
             self.sumo_leg(r, k_act, k_step, k_upd, rows)
+        check_learner(self.state.runner.params, rows, r, g.seeds)  # a diverged learner: no checkpoint
         for log, row in zip(self.rounds_logs, rows, strict=True):
             log.append(row)
         for writer in self.writers:
