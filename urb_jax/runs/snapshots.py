@@ -2,7 +2,7 @@
 tests its final ones.
 
 A run with `hybrid.keep_checkpoints_at` keeps the checkpoints after those training days (besides
-the newest). `run_snapshots` restores each, runs the run's own test phase on it (the same test
+the newest two). `run_snapshots` restores each, runs the run's own test phase on it (the same test
 days, keys and AON reference day; with frozen deterministic humans every test day of a seed is
 one SUMO day, run once) and measures it with the run's metric code, so the last snapshot of a
 finished run gives exactly the run's own test metrics. The rows (a seed and snapshot each) go to

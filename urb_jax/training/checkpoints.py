@@ -138,7 +138,7 @@ def _check_space(d: Path, nbytes: int) -> None:
 
 def kept_checkpoints(folder: Path) -> list[int]:
     """The rounds done of every complete checkpoint in `folder` (a group's first), ascending: the
-    newest and those `hybrid.keep_checkpoints_at` kept."""
+    newest two and those `hybrid.keep_checkpoints_at` kept."""
     root = folder / CKPT_DIR
     return sorted(int(p.name.split("_")[1]) for p in root.glob("round_*") if (p / "meta.json").is_file())
 
