@@ -195,7 +195,7 @@ def train_humans(scenario: Scenario, hp: HumanParams, days: int, *, env_seed: in
     for day in range(first_day, days + 1):
         k_act, k_learn = jax.random.split(jax.random.fold_in(root, day))
         choices = np.asarray(act_jit(k_act, humans, hp, fft))
-        res = one_day(executor, scenario, choices, env_seed, no_cav)
+        res = one_day(executor, scenario, choices, env_seed)  # no CAV mask: a humans-only day
         if bar is not None:
             bar.update(1, bar_label)
         times = jnp.asarray(res.travel_time, dtype=jnp.float32)
