@@ -13,9 +13,8 @@ The JaxMARL interface over the env lives in `urb_jax.interop.jaxmarl` (optional 
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 from urb_jax.algorithms.baselines import FixedPolicy
 from urb_jax.core.errors import UrbJaxError
@@ -23,9 +22,9 @@ from urb_jax.game.env import RoutingEnv
 from urb_jax.game.mutation import draw_cavs
 from urb_jax.game.rollout import Policy
 from urb_jax.runs.baseline import run_policy
-from urb_jax.runs.folder import CONFIG_FILE
-from urb_jax.runs.request import BaselineRequest, TrainRequest
-from urb_jax.runs.setup import RunResult, TrainSetup, load_setup
+from urb_jax.runs.folder import read_train_config
+from urb_jax.runs.request import BaselineRequest
+from urb_jax.runs.setup import RunResult, TrainSetup, recorded_setup
 from urb_jax.surrogate import build_static
 from urb_jax.surrogate.calibrate import uncalibrated
 from urb_jax.training.human_phase import HumanPhase, calibrate, reuse_human_phase
@@ -41,24 +40,12 @@ class RunEnv(NamedTuple):
     source: Path
 
 
-def _train_config(run: str | Path) -> tuple[Path, dict[str, Any]]:
-    folder = Path(run).expanduser().resolve()
-    path = folder / CONFIG_FILE
-    if not path.is_file():
-        raise UrbJaxError(f"{path}: not found. Fix: pass the folder of a finished `urb-jax train` run "
-                          "(results/<id>/).")
-    config = json.loads(path.read_text())
-    if "train_args" not in config:
-        raise UrbJaxError(f"{path}: not a `urb-jax train` run (no 'train_args'). Fix: pass the folder of a "
-                          "train run; baseline runs keep no calibration days.")
-    return folder, config
-
-
 def surrogate_env_from_run(run: str | Path) -> RunEnv:
     """The surrogate env of `run` at round 0: its scenario, CAVs, trained humans and the surrogate
     calibrated on its human phase's calibration days (no SUMO day is run)."""
-    folder, config = _train_config(run)
-    setup = load_setup(TrainRequest.from_record(config["train_args"], [config["train_args"]["seed"]]))
+    folder = Path(run).expanduser().resolve()
+    config = read_train_config(folder)
+    _, setup = recorded_setup([config])
     env_seed = int(config["env_seed"])
     human = reuse_human_phase(folder, config, setup.scn, setup.task, setup.hyb, env_seed, calibrate=True)
     if not len(human.calib_choices):
@@ -79,8 +66,8 @@ def evaluate_on_sumo(policy: Policy, run: str | Path, *, name: str = "outside", 
     (raw observations of the env, CAVs acting in departure order) after `run`'s human phase,
     replayed from its records; no training day. Returns the run with its metrics (t_CAV, t_pre, ...)
     in results_dir/exp_id/ (default id: name_<network>_<task>_s<env seed>)."""
-    folder, config = _train_config(run)
-    args = config["train_args"]
+    folder = Path(run).expanduser().resolve()
+    args = read_train_config(folder)["train_args"]
     req = BaselineRequest(net=args["net"], task_conf=args["task_conf"], env_conf=args["env_conf"],
                           env_seed=int(args["env_seed"]), exp_id=exp_id, networks_dir=args["networks_dir"],
                           human_phase_from=str(folder),

@@ -263,6 +263,20 @@ def read_run_config(folder: Path) -> dict[str, Any]:
     return config
 
 
+def read_train_config(folder: Path) -> dict[str, Any]:
+    """`read_run_config` of a `urb-jax train` run; another folder (none, or a baseline run, which
+    keeps no policies, checkpoints or calibration days): a UrbJaxError that says what to pass."""
+    path = folder / CONFIG_FILE
+    if not path.is_file():
+        raise UrbJaxError(f"{path}: not found. Fix: pass a `urb-jax train` run (its id in --results-dir, "
+                          "or its folder).")
+    config = read_run_config(folder)
+    if "train_args" not in config:
+        raise UrbJaxError(f"{path}: not a `urb-jax train` run (no 'train_args'); baseline runs keep no "
+                          "policies, checkpoints or calibration days. Fix: pass a train run.")
+    return config
+
+
 def run_status(folder: Path) -> str | None:
     """exp_config.json's status ("created", ..., "done": `mark_done`); None without the file."""
     return read_run_config(folder).get("status") if (folder / CONFIG_FILE).is_file() else None

@@ -78,6 +78,17 @@ def load_setup(req: TrainRequest) -> TrainSetup:
     return TrainSetup(scn, task, task_path, env, env_path, hyb, hyb_path, alg_config)
 
 
+def recorded_setup(configs: Sequence[dict[str, Any]], **now: Any) -> tuple[TrainRequest, TrainSetup]:
+    """The request and setup of a recorded train run's seed group (`configs`: its seeds' records,
+    in group order) as the run built them; `now`: the request fields this call sets anew."""
+    recorded = configs[0]["train_args"]
+    req = TrainRequest.from_record(recorded, [c["train_args"]["seed"] for c in configs], **now)
+    setup = load_setup(req)
+    if "hybrid_seed_axis" not in configs[0]:  # started before the key: its seeds were vmapped
+        setup = setup._replace(hyb=dataclasses.replace(setup.hyb, seed_axis="vmap"))
+    return req, setup
+
+
 def scenario_of(net: str | None, networks_dir: str | None, env_seed: int, env: EnvConfig,
               task: TaskConfig, drop_unroutable: bool) -> Scenario:
     """The network's scenario with the task's demand (`drop_unroutable`: see load_scenario)."""

@@ -12,8 +12,6 @@ had spent, i.e. the sample-efficiency curve of a SUMO-only run.
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import tempfile
 import warnings
 from dataclasses import dataclass
@@ -25,9 +23,8 @@ from urb_jax.core.atomic import write_text
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.reporting.metrics import compute_metrics
 from urb_jax.reporting.records import RecordsWriter, networks_dir_of, read_records
-from urb_jax.runs.folder import CONFIG_FILE, check_exp_id
-from urb_jax.runs.request import TrainRequest
-from urb_jax.runs.setup import load_setup
+from urb_jax.runs.folder import check_exp_id, read_run_config, read_train_config
+from urb_jax.runs.setup import recorded_setup
 from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor
 from urb_jax.training.checkpoints import kept_checkpoints
 from urb_jax.training.hybrid.trainer import Group, checkpoint_test_phase, setup_group
@@ -54,9 +51,9 @@ def run_snapshots(req: SnapshotRequest, *, executor: DayExecutor | None = None) 
     the group's first folder. `executor`: the SUMO days' (default: SUMO in this process)."""
     results = Path(req.results_dir)
     folder = results / check_exp_id(req.exp_id)
-    config = _train_config(folder)
+    config = read_train_config(folder)
     folders = [results / name for name in config.get("group", [req.exp_id])]
-    configs = [json.loads((f / CONFIG_FILE).read_text()) for f in folders]
+    configs = [read_run_config(f) for f in folders]
     rounds = _rounds(folders[0], req.rounds)
     g = _group(folders, configs, req)
     with tempfile.TemporaryDirectory(prefix="urbjax-snapshot-") as tmp:
@@ -94,18 +91,6 @@ def _snapshot_rows(g: Group, r: int, executor: DayExecutor, tmp: Path, progress:
     return rows
 
 
-def _train_config(folder: Path) -> dict:
-    path = folder / CONFIG_FILE
-    if not path.is_file():
-        raise UrbJaxError(f"{folder}: no urb-jax run here (no {CONFIG_FILE}). Fix: pass the id of a train "
-                          "run in --results-dir.")
-    config = json.loads(path.read_text())
-    if "train_args" not in config:
-        raise UrbJaxError(f"{path}: not a train run (or stopped before its first round): it has no round "
-                          "checkpoints to test.")
-    return config
-
-
 def _rounds(first: Path, asked: tuple[int, ...]) -> list[int]:
     """The kept checkpoints to test: all, or those asked for (each must be kept)."""
     kept = kept_checkpoints(first)
@@ -119,12 +104,7 @@ def _rounds(first: Path, asked: tuple[int, ...]) -> list[int]:
 
 def _group(folders: list[Path], configs: list[dict], req: SnapshotRequest) -> Group:
     """The run's seed group as its resume would build it, from the request it recorded."""
-    recorded = configs[0]["train_args"]
-    train = TrainRequest.from_record(recorded, [c["train_args"]["seed"] for c in configs],
-                                     results_dir=req.results_dir, progress=req.progress,
-                                     networks_dir=networks_dir_of(configs[0], req.networks_dir))
-    setup = load_setup(train)
-    if "hybrid_seed_axis" not in configs[0]:  # started before the key: its seeds were vmapped
-        setup = setup._replace(hyb=dataclasses.replace(setup.hyb, seed_axis="vmap"))
+    train, setup = recorded_setup(configs, results_dir=req.results_dir, progress=req.progress,
+                                  networks_dir=networks_dir_of(configs[0], req.networks_dir))
     return setup_group(setup.scn, setup.task, setup.env, train.alg, setup.alg_config, setup.hyb, train.mode,
                        list(train.seeds), train.env_seed, folders, None)

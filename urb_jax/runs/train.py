@@ -50,6 +50,7 @@ from urb_jax.runs.setup import (
     experiment_config,
     first_reusable,
     load_setup,
+    recorded_setup,
     stops_cleanly,
 )
 from urb_jax.runs.urb_configs import (
@@ -210,10 +211,7 @@ def _resume_group(group: list[str], resume: ResumeRequest, executor: DayExecutor
            "human_phase_from": configs[0].get("human_phase_from"),
            **{k: v for k, v in (("log", resume.log), ("executor", resume.executor),
                                 ("ray_address", resume.ray_address)) if v is not None}}
-    req = TrainRequest.from_record(recorded, [c["train_args"]["seed"] for c in configs], **now)
-    setup = load_setup(req)
-    if "hybrid_seed_axis" not in configs[0]:  # started before the key: its seeds were vmapped
-        setup = setup._replace(hyb=dataclasses.replace(setup.hyb, seed_axis="vmap"))
+    req, setup = recorded_setup(configs, **now)
     check_run_network(folders[0] / CONFIG_FILE, configs[0], setup.scn.n_agents, setup.scn.net_file)
     with stops_cleanly(folders), \
             _executor(executor, setup.hyb, folders[0], req.executor, req.ray_address) as ex:
