@@ -7,19 +7,18 @@ file. Before: alg.lr=NaN and task.human_beta=NaN trained to the end with exit 0 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
+import pkgutil
+import sys
 from typing import ClassVar
 
 import pytest
 
-from urb_jax.algorithms.configs import (
-    BaselineConfig,
-    IPPOStarConfig,
-    IQLConfig,
-    IQLStarConfig,
-    MixerConfig,
-    PPOConfig,
-)
+import urb_jax
+from urb_jax.algorithms.configs import BaselineConfig
+from urb_jax.algorithms.registry import ALGORITHMS
+from urb_jax.analysis.optimum import SearchConfig
 from urb_jax.commands import cli
 from urb_jax.core.configio import configs_dir, read_json
 from urb_jax.core.errors import ConfigError
@@ -28,8 +27,27 @@ from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.training.hybrid.plan import HybridConfig
 
-CONFIGS = (TaskConfig, EnvConfig, HybridConfig, IQLConfig, PPOConfig, MixerConfig, IQLStarConfig,
-           IPPOStarConfig, BaselineConfig, SumoConfig)
+
+def _declaring_ranges() -> list[type]:
+    """Every dataclass of the package that declares RANGES (found, not listed: a new one is checked)."""
+    for info in pkgutil.walk_packages(urb_jax.__path__, "urb_jax."):
+        importlib.import_module(info.name)
+    seen: dict[str, type] = {}
+    for mod in list(sys.modules.values()):
+        if getattr(mod, "__name__", "").startswith("urb_jax."):
+            for obj in vars(mod).values():
+                if dataclasses.is_dataclass(obj) and isinstance(obj, type) and hasattr(obj, "RANGES"):
+                    seen[f"{obj.__module__}.{obj.__qualname__}"] = obj
+    return [seen[k] for k in sorted(seen)]
+
+
+CONFIGS = _declaring_ranges()
+
+
+def test_every_config_a_user_can_load_declares_ranges() -> None:
+    loaded = {TaskConfig, EnvConfig, HybridConfig, SumoConfig, BaselineConfig, SearchConfig,
+              *(a.config_class for a in ALGORITHMS.values())}
+    assert loaded <= set(CONFIGS), loaded - set(CONFIGS)
 
 
 @pytest.mark.parametrize("cls", CONFIGS, ids=lambda c: c.__name__)
@@ -146,3 +164,9 @@ def test_a_paper_file_with_a_key_given_twice_is_refused(tmp_path) -> None:
     with pytest.raises(ConfigError, match=r"paper.json: key 'entries' is given twice"):
         load_paper_numbers(path)
 
+
+
+@pytest.mark.parametrize("flag", [["--sumo-rounds", "-1"], ["--relax-steps", "0"]])
+def test_optimum_flags_out_of_range_name_the_flag(flag, tmp_path, capsys) -> None:
+    assert cli.main(["optimum", str(tmp_path), *flag]) == 2  # before the run folder is read
+    assert f"flag {flag[0]} is {flag[1]}. Fix: use an integer in" in capsys.readouterr().err

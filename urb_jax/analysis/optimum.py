@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, ClassVar, cast
 
 import jax
 import jax.numpy as jnp
@@ -36,6 +36,7 @@ import pandas as pd
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.atomic import write_json
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.ranges import FRACTION, STEPS, Range, above, between, check_ranges
 from urb_jax.game.humans import aon_routes
 from urb_jax.game.rewards import behaviour_coefficients
 from urb_jax.reporting.day_export import recorded_day, run_config, scenario_of_run
@@ -69,7 +70,16 @@ class SearchConfig:
     switch_share: float = 0.3  # best-response dynamics: share of the gaining CAVs that switch
     seed: int = 0
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "relax_steps": between(1, STEPS), "learning_rate": above(0, 10), "tau_start": above(0, 1e3),
+        "tau_end": above(0, 1e3), "random_starts": between(0, 1_000), "max_moves": between(0, STEPS),
+        "trust_moves": between(1, 1_000_000), "screened_moves": between(0, 1_000_000),
+        "sumo_rounds": between(0, 10_000, "each round runs SUMO days"), "refit_steps": between(0, STEPS),
+        "bias_prior": between(0, 1e6), "switch_share": FRACTION, "seed": between(0, 2**31 - 1),
+    }
+
     def __post_init__(self) -> None:
+        check_ranges(self)
         if self.objective is not None and self.objective not in OBJECTIVES:
             raise ValueError(f"objective {self.objective!r}: use one of {OBJECTIVES}")
 

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 
 from urb_jax.commands.common import add_networks_dir
+from urb_jax.core.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,8 +28,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from urb_jax.analysis.optimum import SearchConfig, run_references
 
-    cfg = SearchConfig(objective=args.objective, sumo_rounds=args.sumo_rounds, relax_steps=args.relax_steps,
-                       seed=args.seed)
+    try:
+        cfg = SearchConfig(objective=args.objective, sumo_rounds=args.sumo_rounds,
+                           relax_steps=args.relax_steps, seed=args.seed)
+    except ConfigError as exc:  # "key 'sumo_rounds' ...": name the flag
+        flag = re.sub(r"key '(\w+)'", lambda m: f"flag --{m.group(1).replace('_', '-')}", str(exc))
+        raise ConfigError(f"urb-jax optimum: {flag}") from None
     out = run_references(args.run, args.networks_dir, cfg, log=lambda line: print(line, flush=True))
     rows = [("run (its first test day)", out["run_day"]), ("AON, same humans", out["aon"]),
             ("optimum", out["optimum"]), ("selfish equilibrium", out["equilibrium"])]
