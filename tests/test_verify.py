@@ -12,7 +12,7 @@ from support.fakeday import FakeDay
 
 from urb_jax.core.atomic import write_text
 from urb_jax.reporting.paper import ledger_json, read_ledger
-from urb_jax.reporting.provenance import NOT_RECORDED
+from urb_jax.reporting.provenance import NOT_RECORDED, provenance
 from urb_jax.runs.folder import source_commit
 from urb_jax.runs.suite import SuiteRun, ledger_rows, run_suite
 from urb_jax.runs.verify import report_lines, rows_to_verify, verify_folder, verify_rows
@@ -44,10 +44,18 @@ def test_a_ledger_row_keeps_its_runs_provenance(recorded):
     assert prov["machine"]["cpu_count"] and prov["versions"]["jax"]
     assert prov["request"] == NOT_RECORDED  # a baseline records no train request
     assert prov["overrides"] == [] and prov["human_phase_from"] is None
+    assert prov["seeds_trained_together"] == prov["seed_axis"] == NOT_RECORDED  # no learner, no seed group
     assert prov["wall_time_s"] >= 0 and prov["date"].endswith("+00:00")  # exp_config.json's finished_at
     rnd = next(r for r in json.loads(text)["runs"] if r["exp_id"] == "rnd")
     assert rnd["provenance"]["human_phase_from"] == "aon"  # the suite replayed aon's human phase
     assert str(root) not in text  # no absolute path of this machine in the committed ledger
+
+
+def test_a_train_runs_provenance_names_its_seed_group_and_axis(tmp_path):
+    cfg = {"group": ["x_s0", "x_s1"], "seeds_together": 2, "seed_axis_used": "map",
+           "finished_at": "2026-01-01T00:00:00+00:00"}
+    prov = provenance(cfg, tmp_path / "exp_config.json")
+    assert prov["seeds_trained_together"] == ["x_s0", "x_s1"] and prov["seed_axis"] == "map"
 
 
 def test_verify_says_identical_when_rerun_unchanged_and_names_an_edited_metric(recorded):

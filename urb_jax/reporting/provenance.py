@@ -54,7 +54,9 @@ def provenance(cfg: dict[str, Any], cfg_path: Path) -> dict[str, Any]:
         "request": args or NOT_RECORDED,
         "overrides": list(args.get("overrides") or (cfg.get("overrides") or {}).get("given") or []),
         "human_phase_from": cfg.get("human_phase_from"),
-        "seeds_trained_together": cfg.get("group", NOT_RECORDED),  # a vmapped group rounds otherwise
+        # seeds trained in one program, and how (vmap or lax.map): XLA rounds a vmapped group otherwise
+        "seeds_trained_together": cfg.get("group", NOT_RECORDED),
+        "seed_axis": cfg.get("seed_axis_used", NOT_RECORDED),
         "wall_time_s": cfg.get("wall_time_s", NOT_RECORDED),
         "date": finished_date(cfg, cfg_path),
     })
