@@ -472,3 +472,18 @@ def test_the_finished_seeds_of_an_unfinished_run_outlive_their_machine(tmp_path,
                   if line.startswith("|  | ours, SUMO duration |") and "| 5 |" in line and "| n/a |" in line]
     assert "3.3200 ± 0.0158" in duration  # all five seeds (3.30 ... 3.34): mean, sample std (ddof=1)
     assert len(json.loads((docs / "paper_runs.json").read_text())["runs"]) == 5
+
+
+def test_a_cost_cell_says_why_it_is_not_judged():
+    """A paper cost cell is never compared by value: a hybrid run's row says it is hybrid (its cost
+    counts surrogate days), a SUMO-only row says the published definition differs."""
+    from urb_jax.reporting.paper import WHY_COST, judge_cell
+    from urb_jax.reporting.verdicts import NOT_COMPARABLE
+
+    table = {"rows": {"iql": {"values": {"c_CAV": 1.5}}}, "runs": 3}
+    hybrid = pd.DataFrame({"c_CAV": [1.0], "sumo_training_days": [40], "surrogate_training_days": [5960]})
+    sumo = hybrid.assign(sumo_training_days=6000, surrogate_training_days=0)
+    on_hybrid, on_sumo = (judge_cell(table, "iql", "c_CAV", {"iql": rows}) for rows in (hybrid, sumo))
+    assert on_hybrid.kind == on_sumo.kind == NOT_COMPARABLE
+    assert on_hybrid.detail == "not comparable: hybrid (40 SUMO of 6000 training days)"
+    assert on_sumo.detail == WHY_COST

@@ -230,7 +230,8 @@ def seed_values(rows: pd.DataFrame, column: str, measure: int) -> list[float] | 
 # ---- verdicts on the paper's claims and cells
 
 NOT_COMPARED = {"c_all", "c_HDV", "c_CAV"}  # the published costs follow neither URB's code nor ours
-WHY_COST = "the published costs follow a definition unlike ours (docs/metrics.md): only their sign is judged"
+WHY_COST = ("the published costs follow a definition unlike ours (docs/metrics.md): their values are not "
+            "compared, only the paper's claims about their sign")
 
 
 def hybrid_cost(rows: pd.DataFrame, column: str) -> str | None:
@@ -296,9 +297,9 @@ def judge_claim(claim: list[Any], row: str, ours: Seeds, paper: dict[str, Any], 
 def judge_cell(table: dict[str, Any], row: str, column: str, ours: Seeds) -> V.Verdict:
     """Our value of one paper cell against the paper's mean/std/n (SUMO duration, its measure)."""
     prow = table["rows"][row]
-    if column in NOT_COMPARED:
-        return V.not_comparable(WHY_COST)
     key = next(iter(ours), None) if row == "human" else row  # t_pre: any run's humans
+    if column in NOT_COMPARED:  # a hybrid run's costs are not URB's either way: say why first
+        return V.not_comparable((key in ours and hybrid_cost(ours[key], column)) or WHY_COST)
     if key is None or key not in ours:
         return V.not_comparable("not run")
     vals = seed_values(ours[key], column, 0)
