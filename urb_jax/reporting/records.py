@@ -4,10 +4,17 @@ Records are written incrementally as Parquet parts under `records.parts/` (each 
 temporary name and renamed, so a reader never sees half a part); `close()` compacts them into
 one `records.parquet` (again via rename); the parts are removed only once the run is marked done.
 A crashed run leaves readable complete parts; `read_records` reads either form.
+
+Every part carries the sha256 of its bytes (`part-NNNNN.sha256`, written atomically before the part
+is renamed into place), and the merged file its own (`records.parquet.sha256`). A resume checks
+every part it keeps when it starts (`damaged_parts`), the merge checks them again before it writes,
+and the metric files are computed only from a merged file that matches its digest: damaged records
+are named and refused, never turned into metrics.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -45,6 +52,61 @@ class DayRecord:
 
 RECORDS_FILE = "records.parquet"
 PARTS_DIR = "records.parts"
+DIGEST_SUFFIX = ".sha256"  # beside a part (part-NNNNN.sha256) and the merged file
+
+
+class DamagedRecordsError(UrbJaxError):
+    """Record files that do not match their digests (or are missing)."""
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        while chunk := f.read(1 << 20):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def part_path(parts: Path, i: int) -> Path:
+    return parts / f"part-{i:05d}.parquet"
+
+
+def digest_path(path: Path) -> Path:
+    """Where the sha256 of a records file is kept: part-NNNNN.sha256, records.parquet.sha256."""
+    return path.with_suffix(DIGEST_SUFFIX) if path.name.startswith("part-") else \
+        path.with_name(path.name + DIGEST_SUFFIX)
+
+
+def write_with_digest(path: Path, write: Any) -> None:
+    """`write(tmp)` to a temporary name, its sha256 written (atomically) beside `path`, then the file
+    renamed into place: a visible records file always has its digest."""
+    with atomic_path(path) as tmp:
+        write(tmp)
+        write_bytes(digest_path(path), (file_sha256(tmp) + "\n").encode())
+
+
+def damage_of(path: Path) -> str | None:
+    """Why the records file `path` cannot be trusted (missing, no digest, another sha256), or None.
+    A file written before digests (no digest file beside a merged records.parquet) is trusted."""
+    if not path.is_file():
+        return "missing"
+    dp = digest_path(path)
+    if not dp.is_file():
+        return "its digest file is missing" if path.name.startswith("part-") else None
+    want = dp.read_text().strip()
+    return None if file_sha256(path) == want else "does not match its digest"
+
+
+def damaged_parts(folder: str | os.PathLike, n_parts: int) -> list[tuple[int, str]]:
+    """(index, 'path: why') of each of the first `n_parts` record parts of `folder` that is missing
+    or does not match its digest, in order."""
+    parts = Path(folder) / PARTS_DIR
+    bad = []
+    for i in range(n_parts):
+        p = part_path(parts, i)
+        if (why := damage_of(p)) is not None:
+            bad.append((i, f"{p}: {why}"))
+    return bad
 
 
 SCHEMA = pa.schema([
@@ -81,10 +143,11 @@ class RecordsWriter:
         """Drop the parts written after the first `n_parts`: a resumed run writes those days again.
         Until a run is done its parts are the records; a merged file from a later instant (a kill
         after `close`) is derived from them and goes too, to be merged again at the end."""
-        for p in self.parts.glob("part-*.parquet"):
-            if int(p.stem.split("-")[1]) >= n_parts:
+        for p in [*self.parts.glob("part-*.parquet"), *self.parts.glob(f"part-*{DIGEST_SUFFIX}")]:
+            if int(p.name.split("-")[1].split(".")[0]) >= n_parts:
                 p.unlink()
         (self.folder / RECORDS_FILE).unlink(missing_ok=True)
+        digest_path(self.folder / RECORDS_FILE).unlink(missing_ok=True)
         self._n_parts = n_parts
 
     def __call__(self, rec: DayRecord) -> None:
@@ -119,28 +182,55 @@ class RecordsWriter:
         if not self._pending:
             return
         table = pa.Table.from_batches(self._pending, schema=SCHEMA)
-        with atomic_path(self.parts / f"part-{self._n_parts:05d}.parquet") as tmp:
-            pq.write_table(table, tmp, compression="zstd")
+        write_with_digest(part_path(self.parts, self._n_parts),
+                          lambda tmp: pq.write_table(table, tmp, compression="zstd"))
         self._n_parts += 1
         self._pending = []
 
     def close(self) -> Path:
         """Flush and compact every part into one records.parquet (atomic, fsynced). The parts stay
         until the run is marked done (`remove_parts`), so a kill at any instant of the finish
-        leaves either the parts or the parts and a complete merged file."""
+        leaves either the parts or the parts and a complete merged file. Every part is checked against
+        its digest first: a damaged or missing one is a DamagedRecordsError naming it, and nothing
+        is merged."""
         self.flush()
         target = self.folder / RECORDS_FILE
-        parts = sorted(self.parts.glob("part-*.parquet"))
-        with atomic_path(target) as tmp, pq.ParquetWriter(tmp, SCHEMA, compression="zstd") as writer:
-            for p in parts:
-                writer.write_table(pq.read_table(p, schema=SCHEMA))
+        found = sorted(self.parts.glob("part-*.parquet"))
+        n = max(self._n_parts, len(found))
+        if bad := damaged_parts(self.folder, n):
+            raise DamagedRecordsError(
+                f"{self.folder}: record parts damaged before the merge ({'; '.join(b for _, b in bad)}); "
+                f"no {RECORDS_FILE} or metric files were written. {RESUME_FIX}")
+        parts = [part_path(self.parts, i) for i in range(n)]
+
+        def merge(tmp: Path) -> None:
+            with pq.ParquetWriter(tmp, SCHEMA, compression="zstd") as writer:
+                for p in parts:
+                    writer.write_table(pq.read_table(p, schema=SCHEMA))
+
+        write_with_digest(target, merge)
         return target
+
+
+RESUME_FIX = ("Fix: continue the run with `urb-jax train --resume <id>` (it goes back to a checkpoint whose "
+              "records are intact), or start it again with the same command and --overwrite.")
 
 
 def remove_parts(folder: str | os.PathLike) -> None:
     """The last step of a finished run: the parts, now merged into records.parquet, go."""
     if (Path(folder) / RECORDS_FILE).is_file():
         shutil.rmtree(Path(folder) / PARTS_DIR, ignore_errors=True)
+
+
+def verified_records(folder: str | os.PathLike) -> pd.DataFrame:
+    """records.parquet of `folder`, checked against its digest first (a file from before digests:
+    as it is); a mismatch is a DamagedRecordsError: no metric is computed from damaged records."""
+    path = Path(folder) / RECORDS_FILE
+    if (why := damage_of(path)) is not None:
+        raise DamagedRecordsError(f"{path}: {why}; no metric files were written from it. Fix: if the "
+                                  f"run's {PARTS_DIR}/ is still there, `urb-jax train --resume <id>` merges "
+                                  "them again; otherwise restore the file from a backup or run again.")
+    return pq.read_table(path).to_pandas()
 
 
 def read_records(folder: str | os.PathLike, columns: Sequence[str] | None = None) -> pd.DataFrame:
@@ -209,16 +299,19 @@ def write_run_metrics(folder: Path, human_days: int, training_days: int,
     beside URB's: equity over the humans, atomically) from its records: every run's last step, and
     what `urb-jax metrics` redoes. A `hybrid` run's columns that cover its SUMO training days only
     go under their own names (`comparable.comparable_metrics`). Returns the metrics and the records."""
-    records = read_records(folder)
+    records = verified_records(folder) if (Path(folder) / RECORDS_FILE).is_file() else read_records(folder)
     metrics = compute_metrics(records, human_days, training_days)
     metrics = comparable_metrics(metrics) if hybrid else metrics
     out = Path(folder) / "metrics"
-    out.mkdir(parents=True, exist_ok=True)
-    write_bytes(out / "BenchmarkMetrics.csv", pd.DataFrame([metrics]).to_csv(index=False).encode())
-    write_bytes(out / "VectorMetrics.csv",
-                vector_metrics(records, human_days, training_days).to_csv(index=False).encode())
+    # every file computed before any is written: a failure leaves the metric files as they were
+    vector = vector_metrics(records, human_days, training_days)
     social = pd.DataFrame([social_metrics(records, human_days, training_days)])[SOCIAL_COLUMNS]
-    write_bytes(out / "SocialMetrics.csv", social.to_csv(index=False).encode())
+    files = {"BenchmarkMetrics.csv": pd.DataFrame([metrics]).to_csv(index=False).encode(),
+             "VectorMetrics.csv": vector.to_csv(index=False).encode(),
+             "SocialMetrics.csv": social.to_csv(index=False).encode()}
+    out.mkdir(parents=True, exist_ok=True)
+    for name, data in files.items():
+        write_bytes(out / name, data)
     return metrics, records
 
 

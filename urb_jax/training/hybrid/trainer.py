@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -25,18 +27,29 @@ from urb_jax.algorithms.registry import load_algo_config
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.choices import MODES
 from urb_jax.core.configio import configs_dir
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.phase import enter_phase
 from urb_jax.core.progress import Progress
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
 from urb_jax.game.mutation import draw_cavs
-from urb_jax.reporting.records import DayRecord, RecordsWriter
+from urb_jax.reporting.records import PARTS_DIR, DayRecord, RecordsWriter, damaged_parts
 from urb_jax.sumo_bridge import DayExecutor, DayResult
 from urb_jax.sumo_bridge.memo import MemoExecutor
 from urb_jax.surrogate import SumoSample, build_static, predict
 from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias, uncalibrated
 from urb_jax.surrogate.model import Static
-from urb_jax.training.checkpoints import RoundMeta, latest_checkpoint, restore_round, save_round
+from urb_jax.training.checkpoints import (
+    CKPT_DIR,
+    RoundMeta,
+    damaged_files,
+    kept_checkpoints,
+    latest_checkpoint,
+    restore_round,
+    save_round,
+    verified_checkpoint,
+)
 from urb_jax.training.human_phase import HumanPhase, calibrate
 from urb_jax.training.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
 from urb_jax.training.hybrid.diverged import check_learner
@@ -53,6 +66,7 @@ from urb_jax.training.hybrid.plan import (
 from urb_jax.training.protocol import PHASE_TEST, PHASE_TRAIN
 
 Row = dict[str, float]  # one seed's rounds.csv row
+log = logging.getLogger(__name__)
 
 
 class GroupKeys(NamedTuple):
@@ -219,6 +233,7 @@ class HybridTrainer:
         """Records the human phase, calibrates the surrogate on its calibration days (the same for
         every seed), puts the trained humans in every real env and checkpoints round 0."""
         g = self.g
+        enter_phase("the start of training (calibration, round 0's checkpoint)")
         state = self.fresh_state()
         for writer in self.writers:
             writer.truncate(0)  # a run restarted before its first checkpoint writes its parts again
@@ -238,8 +253,15 @@ class HybridTrainer:
         return 0
 
     def resume(self) -> int:
-        """The group's newest checkpoint; every seed's record parts written after it are dropped."""
-        meta = self.restore()
+        """The group's newest checkpoint whose records are intact; every seed's record parts written
+        after it are dropped. Every part a checkpoint counts is checked against its digest before
+        any round runs (`intact_checkpoint`)."""
+        enter_phase("the resume (restoring the checkpoint)")
+        found = verified_checkpoint(self.g.folders[0])
+        if found is None:
+            raise RuntimeError(f"{self.g.folders[0]}: no checkpoint to resume from")
+        newest = json.loads((found[1] / "meta.json").read_text())
+        meta = self.restore(intact_checkpoint(self.g.folders, found[0], newest["record_parts"]))
         for writer, parts in zip(self.writers, meta.record_parts, strict=True):
             writer.truncate(parts)
         return meta.rounds_done
@@ -275,10 +297,14 @@ class HybridTrainer:
         k_sur, k_act, k_step, k_upd = rk[:, 0], rk[:, 1], rk[:, 2], rk[:, 3]
         rows: list[Row] = [{"round": r + 1} for _ in g.seeds]
         g.clock.start_round(r)
+        where = f"round {r + 1} of {g.plan.n_rounds}"
         if g.plan.surrogate_days:
+            enter_phase(f"{where}: the surrogate leg")
             self.surrogate_leg(k_sur, rows)
         if g.plan.sumo_days:
+            enter_phase(f"{where}: the SUMO leg (SUMO days, updates, refit)")
             self.sumo_leg(r, k_act, k_step, k_upd, rows)
+        enter_phase(f"{where}: the checkpoint")
         check_learner(self.state.runner.params, rows, r, g.seeds)  # a diverged learner: no checkpoint
         for log, row in zip(self.rounds_logs, rows, strict=True):
             log.append(row)
@@ -488,11 +514,43 @@ def train_group(
         if stop_after_round is not None and r + 1 >= stop_after_round:
             bar.close()
             return Stopped(r + 1)
+    enter_phase("the test days")
     aon = trainer.test()
     bar.close()
+    enter_phase("the records' merge")
     for writer in writers:
         writer.close()
     return trainer.summaries(aon)
+
+
+def intact_checkpoint(folders: Sequence[Path], newest: int, newest_parts: Sequence[int]) -> int:
+    """The rounds done of the newest kept checkpoint, at most `newest`, whose record parts are all
+    intact in every seed's folder (`records.damaged_parts`). A damaged or missing part is named (a
+    warning: run.log) and a checkpoint from before it is used, its later parts written again; none
+    left is a UrbJaxError that names the files and says what to do."""
+    bad = [damaged_parts(f, n) for f, n in zip(folders, newest_parts, strict=True)]
+    if not any(bad):
+        return newest
+    first_bad = [b[0][0] if b else n for b, n in zip(bad, newest_parts, strict=True)]
+    named = "; ".join(why for b in bad for _, why in b)
+    for rounds_done in reversed(kept_checkpoints(folders[0])):
+        ckpt = folders[0] / CKPT_DIR / f"round_{rounds_done:05d}"
+        if rounds_done >= newest:
+            continue
+        try:
+            meta = json.loads((ckpt / "meta.json").read_text())
+        except ValueError:
+            continue
+        if damaged_files(ckpt, meta):
+            continue
+        if all(n <= f for n, f in zip(meta["record_parts"], first_bad, strict=True)):
+            log.warning("damaged records (%s): resuming from the checkpoint after round %d, whose records "
+                        "are intact; the days after it are run again", named, rounds_done)
+            return rounds_done
+    raise UrbJaxError(
+        f"{folders[0]}: damaged records ({named}); no kept checkpoint comes before them, so the run cannot "
+        "go on from its records. Fix: start the run again with the same command and --overwrite (or "
+        f"restore {PARTS_DIR}/ from a backup and --resume).")
 
 
 def checkpoint_test_phase(g: Group, rounds_done: int, executor: DayExecutor, writers: list[RecordsWriter],
