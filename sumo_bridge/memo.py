@@ -6,12 +6,16 @@ Two users: URB's test phase repeats one joint action (greedy policies meet froze
 humans, so all `test_eps` days of a seed are the same day): simulating it once gives the same
 records at a hundredth of the cost. Surrogate calibration and validation (`surrogate.sumo_days`)
 keep days on disk across runs. Keys: `keys.day_key`; files: `store_dir/<net>-<scenario key>/
-<day key>.npz`, written atomically; an entry that cannot be read is run again and rewritten.
+<day key>.npz`, written atomically; an entry that cannot be read is run again and rewritten. Each
+entry also holds its day key and the sha256 of its arrays (`_key`, `_sha256`): an entry whose
+content does not match its name (a renamed or copied file, bytes changed on disk) is a miss, logged,
+and the day is run again and rewritten. Entries from before these fields are read as they are.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
 import os
 import zipfile
@@ -69,7 +73,7 @@ class MemoExecutor:
             for key, day in zip(todo, days, strict=True):
                 self.cache[key] = day
                 if self.store_dir is not None:
-                    save_day(self._path(scenario, key), day)
+                    save_day(self._path(scenario, key), day, key)
         self.simulated += len(todo)
         self.reused += len(keys) - len(todo)
         return [self.cache[k] for k in keys]
@@ -84,10 +88,14 @@ class MemoExecutor:
         if not path.is_file():
             return False
         try:
-            self.cache[key] = load_day(path)
+            self.cache[key] = load_day(path, key)
         except _DAMAGED as exc:  # a damaged entry: run the day again (and rewrite it)
             log.warning("SUMO day cache entry %s is unreadable (%s): re-running the day and rewriting it",
                         path, _first_line(exc))
+            return False
+        except EntryMismatchError as exc:
+            log.warning("SUMO day cache entry %s does not match its key (%s): re-running the day and "
+                        "rewriting it", path, exc)
             return False
         return True
 
@@ -109,17 +117,41 @@ def _first_line(exc: BaseException) -> str:
     return (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
 
 
-def save_day(path: str | os.PathLike, day: DayResult) -> None:
-    """One DayResult as an .npz of its fields (atomic; `leave_time` left out when None)."""
+class EntryMismatchError(Exception):
+    """A stored day whose content is not the day its key names."""
+
+
+def _arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
+    """sha256 over the fields' names, dtypes, shapes and bytes, in name order."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name};{a.dtype.str};{a.shape};".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def save_day(path: str | os.PathLike, day: DayResult, key: str | None = None) -> None:
+    """One DayResult as an .npz of its fields (atomic; `leave_time` left out when None), with the
+    sha256 of its arrays and, given, the day key it is stored under."""
     arrays = {f.name: np.asarray(getattr(day, f.name)) for f in dataclasses.fields(day)
               if getattr(day, f.name) is not None}
-    write_npz(path, **arrays)
+    tags = {"_sha256": np.asarray(_arrays_sha256(arrays))}
+    if key is not None:
+        tags["_key"] = np.asarray(key)
+    write_npz(path, **arrays, **tags)
 
 
-def load_day(path: str | os.PathLike) -> DayResult:
-    """The DayResult `save_day` wrote (raises on a damaged file)."""
+def load_day(path: str | os.PathLike, key: str | None = None) -> DayResult:
+    """The DayResult `save_day` wrote (raises on a damaged file; EntryMismatchError where its arrays
+    do not match their stored sha256, or it was stored under another key than `key`)."""
     with np.load(path) as d:
         a = {k: d[k] for k in d.files}
+    digest, stored_key = a.pop("_sha256", None), a.pop("_key", None)
+    if digest is not None and str(digest) != _arrays_sha256(a):
+        raise EntryMismatchError("its arrays do not match the sha256 stored with them")
+    if key is not None and stored_key is not None and str(stored_key) != key:
+        raise EntryMismatchError(f"it holds day {stored_key}")
     return DayResult(
         travel_time=a["travel_time"], duration=a["duration"], route_length=a["route_length"],
         mean_speed=a["mean_speed"], time_loss=a["time_loss"], depart_delay=a["depart_delay"],
