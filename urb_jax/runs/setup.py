@@ -20,6 +20,7 @@ from urb_jax.core.choices import DEFAULT_NETWORK
 from urb_jax.core.configio import in_section, to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop, stop_cause
+from urb_jax.core.phase import MEMORY_HINT, current_phase, enter_phase, is_out_of_memory
 from urb_jax.core.version import __version__
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.runs.folder import (
@@ -128,21 +129,36 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
 
 @contextlib.contextmanager
 def stops_cleanly(folders: list[Path], resumable: bool = True) -> Iterator[None]:
-    """Ctrl-C, SIGTERM, SIGHUP (`core.interrupt`) and a full disk end a train run with the message
+    """Ctrl-C, SIGTERM, SIGHUP (`core.interrupt`), a full disk and memory exhaustion (with the phase
+    it happened in and what uses less memory, `core.phase`) end a train run with the message
     that says what is kept and how to go on (`urb-jax train --resume`), instead of a traceback; the
     executor is closed by then. A forced stop (a signal inside a long jitted call, or sent twice)
     prints the same line."""
     on_stop(lambda: _resume_hint(folders, resumable))
+    enter_phase("setup")
     try:
         yield
     except KeyboardInterrupt:
         raise InterruptedRunError(f"stopped by {stop_cause()}. {_resume_hint(folders, resumable)}") from None
     except Exception as exc:  # orbax and pyarrow wrap the OS error in their own types
+        if is_out_of_memory(exc):
+            raise OutOfMemoryError(folders, exc, _resume_hint(folders, resumable)) from None
         if not no_space(exc):
             raise
         raise disk_full(folders[0].parent, f"({exc}) {_resume_hint(folders, resumable)}") from None
     finally:
         on_stop(None)
+
+
+class OutOfMemoryError(UrbJaxError):
+    """Memory ran out in this process (MemoryError, XLA's RESOURCE_EXHAUSTED): the phase, what uses
+    less memory, and how to continue."""
+
+    def __init__(self, folders: list[Path], exc: BaseException, resume: str) -> None:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        super().__init__(f"{folders[0]}: out of memory during {current_phase()} ({type(exc).__name__}: "
+                         f"{first}). {MEMORY_HINT}. {resume} (with the same settings, once more memory is "
+                         "free).")
 
 
 def _resume_hint(folders: list[Path], resumable: bool) -> str:

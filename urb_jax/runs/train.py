@@ -20,6 +20,7 @@ from urb_jax.core.choices import DEFAULT_NETWORK
 from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.configio import to_dict
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.phase import enter_phase
 from urb_jax.core.progress import Progress
 from urb_jax.game.config import TaskConfig
 from urb_jax.reporting.records import check_run_network, networks_dir_of, remove_parts
@@ -283,6 +284,7 @@ def _train_config(setup: TrainSetup, req: TrainRequest) -> dict[str, Any]:
 def _simulate_human_phase(setup: TrainSetup, executor: DayExecutor, env_seed: int, mode: str,
                           progress: bool) -> HumanPhase:
     calibrate = mode != "sumo"
+    enter_phase("the human phase (human SUMO days, calibration days)")
     bar = Progress(setup.task.human_learning_episodes + (setup.hyb.calib_varied_days if calibrate else 0),
                    progress, desc="human/SUMO")
     human = run_human_phase(setup.scn, setup.task, setup.hyb, executor, env_seed, bar, calibrate=calibrate)
@@ -348,6 +350,7 @@ def _finish_group(folders: list[Path], configs: list[dict[str, Any]], result: li
 def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H: int,
                   wall: float) -> RunResult:
     T = summary.sumo_training_days
+    enter_phase("the metric files")
     metrics, phases = write_outputs(folder, H, T, hybrid=summary.surrogate_days > 0)
     write_rounds(folder, summary.rounds)
     mark_done(folder, config, **names_of(config), **phases, wall_time_s=round(wall, 2), training_days=T,

@@ -17,7 +17,8 @@ import hashlib
 import json
 import logging
 import shutil
-from collections.abc import Collection, Sequence
+import threading
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -35,15 +36,42 @@ DAMAGED_PREFIX = "damaged_"  # a checkpoint whose files failed their digests, ke
 log = logging.getLogger(__name__)
 
 
-def save_checkpoint(path: str | Path, tree: Any) -> Path:
-    """Save a pytree with orbax at an absolute path; waits for the async save to finish."""
+SAVE_TIMEOUT_S = 1800.0  # the longest wait for orbax's writer threads to finish one checkpoint
+
+
+def save_checkpoint(path: str | Path, tree: Any, timeout_s: float | None = None) -> Path:
+    """Save a pytree with orbax at an absolute path; waits for the async save to finish, at most
+    `timeout_s` (default SAVE_TIMEOUT_S): a save that has not finished by then (a hung filesystem)
+    is a UrbJaxError that says so; the previous checkpoint is still complete."""
     import orbax.checkpoint as ocp  # about a second to import: paid only by runs that checkpoint
 
     path = Path(path).expanduser().resolve()
     ckptr = ocp.StandardCheckpointer()
     ckptr.save(path, tree, force=True)
-    ckptr.wait_until_finished()
+    wait_bounded(ckptr.wait_until_finished, SAVE_TIMEOUT_S if timeout_s is None else timeout_s, path)
     return path
+
+
+def wait_bounded(wait: Callable[[], Any], timeout_s: float, path: Path) -> None:
+    """`wait()` in a thread, at most `timeout_s` seconds; its exception is raised here."""
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            wait()
+        except BaseException as exc:  # handed to the caller's thread
+            failed.append(exc)
+
+    worker = threading.Thread(target=run, name="orbax-save-wait", daemon=True)
+    worker.start()
+    worker.join(timeout_s)
+    if worker.is_alive():
+        raise UrbJaxError(f"{path}: the checkpoint's save did not finish within {timeout_s:.0f} s (a hung "
+                          "or very slow filesystem?); the previous round's checkpoint is kept. Fix: check "
+                          "the disk holding the results folder, then continue with "
+                          "`urb-jax train --resume <id>`.")
+    if failed:
+        raise failed[0]
 
 
 def restore_checkpoint(path: str | Path, target: Any) -> Any:

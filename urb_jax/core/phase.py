@@ -1,0 +1,30 @@
+"""What a run is doing now, for the message of a stop that has no better context: memory
+exhaustion (a MemoryError, or XLA's RESOURCE_EXHAUSTED) ends a run with the phase it happened in
+and what uses less memory, instead of a traceback."""
+
+from __future__ import annotations
+
+_NOW = ["setup"]
+
+MEMORY_HINT = ("To use less memory, start the run again (same command with --overwrite) with fewer "
+               "parallel envs (--set hybrid.num_envs=N, or alg.num_envs for --mode sumo), seeds mapped "
+               "instead of vmapped (--set hybrid.seed_axis=map) or fewer seeds trained together "
+               "(--set hybrid.max_vmapped_seeds=1)")
+
+
+def enter_phase(name: str) -> None:
+    """The run is now in phase `name` (e.g. "round 3: surrogate leg")."""
+    _NOW[0] = name
+
+
+def current_phase() -> str:
+    return _NOW[0]
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    """A MemoryError, or an XLA runtime error whose status is RESOURCE_EXHAUSTED (an allocation
+    that failed on the device or the host)."""
+    if isinstance(exc, MemoryError):
+        return True
+    names = {t.__name__ for t in type(exc).__mro__}
+    return bool(names & {"XlaRuntimeError", "JaxRuntimeError"}) and "RESOURCE_EXHAUSTED" in str(exc)[:2000]
