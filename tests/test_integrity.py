@@ -1,0 +1,238 @@
+"""A result is either right or refused: record parts carry sha256 digests that a resume checks when
+it starts (and the merge before it writes), the metric files come only from records that match their
+digest, a SUMO-day journal entry that is not the day its key names is a miss, and memory exhaustion
+or a hung checkpoint save ends a run with a message (exit 2) instead of a traceback or a hang."""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+
+import numpy as np
+import pytest
+from support.digests import result_digests
+from support.fakeday import FakeExecutor
+from support.tiny_runs import train_iql
+
+from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.phase import enter_phase, is_out_of_memory
+from urb_jax.reporting.records import (
+    PARTS_DIR,
+    RECORDS_FILE,
+    DamagedRecordsError,
+    DayRecord,
+    RecordsWriter,
+    damaged_parts,
+    digest_path,
+    file_sha256,
+    write_run_metrics,
+)
+from urb_jax.runs.request import ResumeRequest
+from urb_jax.runs.setup import OutOfMemoryError, stops_cleanly
+from urb_jax.runs.train import resume_train
+from urb_jax.sumo_bridge import SumoConfig
+from urb_jax.sumo_bridge.keys import day_key
+from urb_jax.sumo_bridge.memo import MemoExecutor
+from urb_jax.sumo_bridge.types import ARRIVED, DayResult
+from urb_jax.training.checkpoints import CKPT_DIR, wait_bounded
+from urb_jax.training.hybrid import trainer as trainer_module
+
+N = 6
+
+
+def _day(n: int = N, shift: float = 0.0) -> DayResult:
+    tt = np.linspace(1.0, 2.0, n) + shift
+    return DayResult(travel_time=tt, duration=tt * 60, route_length=np.full(n, 100.0),
+                     mean_speed=np.full(n, 5.0), time_loss=np.zeros(n), depart_delay=np.zeros(n),
+                     status=np.full(n, ARRIVED, np.int8), seed=1, stat_mean_speed=5.0,
+                     stat_mean_route_length=100.0, stat_mean_duration=60.0, teleports=0, n_removed=0,
+                     sim_end_time=100.0, wall_time=0.5)
+
+
+def _flip(path, at: float = 0.5) -> None:
+    data = bytearray(path.read_bytes())
+    data[int(len(data) * at)] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def _writer(folder, days: int = 4) -> RecordsWriter:
+    """A writer with `days` days, one part each (flush_every=1)."""
+    w = RecordsWriter(folder, np.arange(N), np.zeros(N, np.int32), np.arange(N, dtype=np.int32),
+                      flush_every=1)
+    for d in range(days):
+        w.add(DayRecord(d + 1, "human", np.zeros(N, np.int8), np.zeros(N, bool), _day(shift=d),
+                        -np.ones(N), None))
+    return w
+
+
+# ---- record parts
+
+
+def test_every_part_has_its_digest_and_a_damaged_or_missing_one_is_named(tmp_path):
+    _writer(tmp_path)
+    parts = tmp_path / PARTS_DIR
+    for i in range(4):
+        p = parts / f"part-{i:05d}.parquet"
+        assert digest_path(p).read_text().strip() == file_sha256(p)
+    assert damaged_parts(tmp_path, 4) == []
+    _flip(parts / "part-00002.parquet")
+    (parts / "part-00003.parquet").unlink()
+    bad = damaged_parts(tmp_path, 4)
+    assert [i for i, _ in bad] == [2, 3]
+    assert "part-00002.parquet: does not match its digest" in bad[0][1] and bad[1][1].endswith("missing")
+
+
+def test_truncate_drops_parts_and_their_digests(tmp_path):
+    w = _writer(tmp_path)
+    w.truncate(2)
+    assert sorted(p.name for p in (tmp_path / PARTS_DIR).iterdir()) == [
+        "part-00000.parquet", "part-00000.sha256", "part-00001.parquet", "part-00001.sha256"]
+
+
+def test_the_merge_refuses_a_damaged_part_and_writes_nothing(tmp_path):
+    w = _writer(tmp_path)
+    _flip(tmp_path / PARTS_DIR / "part-00001.parquet", 0.9)
+    with pytest.raises(DamagedRecordsError, match=r"part-00001.parquet: does not match its digest.*--resume"):
+        w.close()
+    assert not (tmp_path / RECORDS_FILE).exists() and not digest_path(tmp_path / RECORDS_FILE).exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary file left
+
+
+def test_metrics_only_from_a_merged_file_that_matches_its_digest(tmp_path):
+    w = _writer(tmp_path)
+    w.close()
+    assert digest_path(tmp_path / RECORDS_FILE).read_text().strip() == file_sha256(tmp_path / RECORDS_FILE)
+    write_run_metrics(tmp_path, 2, 1)  # intact: metrics written
+    shutil.rmtree(tmp_path / "metrics")
+    _flip(tmp_path / RECORDS_FILE)
+    with pytest.raises(DamagedRecordsError, match=r"records.parquet: does not match its digest; no metric"):
+        write_run_metrics(tmp_path, 2, 1)
+    assert not (tmp_path / "metrics").exists()
+
+
+@pytest.mark.slow
+def test_a_resume_falls_back_past_a_damaged_last_part_and_ends_byte_identical(confs, tmp_path,
+                                                                              tiny_iql_reference):
+    """Round 2's record part damaged after a kill: the resume names it, goes back to round 1's
+    checkpoint (its records intact) and ends with the uninterrupted run's records and metrics."""
+    (stopped,) = train_iql(confs, tmp_path, "p", stop_after_round=2)
+    last = max((stopped.folder / PARTS_DIR).glob("part-*.parquet"))
+    _flip(last)
+    (out,) = resume_train(ResumeRequest("p", results_dir=str(tmp_path), progress=False),
+                          executor=FakeExecutor())
+    assert result_digests(out.folder) == result_digests(tiny_iql_reference[0].folder)
+    log = (out.folder / "run.log").read_text()
+    assert f"{last.name}: does not match its digest" in log and "checkpoint after round 1" in log
+
+
+@pytest.mark.slow
+def test_a_damaged_first_part_is_refused_before_any_round(confs, tmp_path):
+    """The human phase's part damaged: no checkpoint comes before it, so the resume refuses at once,
+    naming the file and what to do, and runs no SUMO day."""
+    (stopped,) = train_iql(confs, tmp_path, "q", stop_after_round=2)
+    _flip(stopped.folder / PARTS_DIR / "part-00000.parquet")
+    kept = sorted(p.name for p in (stopped.folder / CKPT_DIR).iterdir())
+    ex = FakeExecutor()
+    with pytest.raises(UrbJaxError, match=r"part-00000.parquet: does not match its digest.*no kept "
+                                          r"checkpoint comes before them.*Fix: start the run again"):
+        resume_train(ResumeRequest("q", results_dir=str(tmp_path), progress=False), executor=ex)
+    assert ex.batches == [] and sorted(p.name for p in (stopped.folder / CKPT_DIR).iterdir()) == kept
+
+
+# ---- the SUMO-day journal
+
+
+class _Counting:
+    config = SumoConfig()
+
+    def __init__(self) -> None:
+        self.runs = 0
+
+    def run_days(self, scenario, choices, seeds, is_cav=None):
+        self.runs += len(seeds)
+        return [_day(scenario.n_agents, float(np.asarray(c).any())) for c in choices]
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("damage", ["another day's entry", "arrays changed"])
+def test_a_journal_entry_that_is_not_its_day_is_run_again_and_rewritten(grid_scenario, tmp_path, caplog,
+                                                                        damage):
+    n, k = grid_scenario.n_agents, grid_scenario.k
+    a, b = np.zeros(n, np.int64), np.arange(n) % k
+    inner = _Counting()
+    memo = MemoExecutor(inner, store_dir=tmp_path)
+    day_a, _ = memo.run_days(grid_scenario, np.stack([a, b]), [1, 1])
+    (entry_a,) = tmp_path.rglob(f"{day_key(grid_scenario, a, 1, None, SumoConfig())}.npz")
+    (entry_b,) = tmp_path.rglob(f"{day_key(grid_scenario, b, 1, None, SumoConfig())}.npz")
+    if damage == "another day's entry":  # e.g. a file copied over another
+        shutil.copy(entry_b, entry_a)
+    else:  # the arrays changed but the file reads (a stale digest)
+        z = dict(np.load(entry_a))
+        z["travel_time"] = z["travel_time"] + 1.0
+        np.savez(entry_a, **z)
+    again = MemoExecutor(_Counting(), store_dir=tmp_path)
+    with caplog.at_level(logging.WARNING, logger="urb_jax.sumo_bridge.memo"):
+        (back,) = again.run_days(grid_scenario, a[None], [1])
+    assert again.inner.runs == 1 and back.same_as(day_a)
+    assert f"{entry_a}" in caplog.text and "does not match its key" in caplog.text
+    third = MemoExecutor(_Counting(), store_dir=tmp_path)  # rewritten: read back now
+    assert third.run_days(grid_scenario, a[None], [1])[0].same_as(day_a) and third.inner.runs == 0
+
+
+# ---- memory exhaustion, a hung save
+
+
+class XlaRuntimeError(RuntimeError):
+    """Stands in for jaxlib's error type of that name (only the name and the status are looked at)."""
+
+
+def test_what_counts_as_out_of_memory():
+    assert is_out_of_memory(MemoryError())
+    assert is_out_of_memory(XlaRuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 123 bytes."))
+    assert not is_out_of_memory(XlaRuntimeError("INTERNAL: something else"))
+    assert not is_out_of_memory(ValueError("RESOURCE_EXHAUSTED in a message of a user's value"))
+
+
+@pytest.mark.parametrize("exc", [MemoryError(), XlaRuntimeError("RESOURCE_EXHAUSTED: Out of memory while "
+                                                                "trying to allocate 4.00GiB.")])
+def test_memory_exhaustion_names_the_phase_a_hint_and_the_resume_line(tmp_path, exc):
+    folder = tmp_path / "run"
+    folder.mkdir()
+    with pytest.raises(OutOfMemoryError) as caught, stops_cleanly([folder]):
+        enter_phase("round 3 of 9: the surrogate leg")
+        raise exc
+    msg = str(caught.value)
+    assert isinstance(caught.value, UrbJaxError)  # the CLI's exit 2
+    assert "out of memory during round 3 of 9: the surrogate leg" in msg
+    for hint in ("hybrid.num_envs", "alg.num_envs", "hybrid.seed_axis=map", "hybrid.max_vmapped_seeds"):
+        assert hint in msg
+    assert f"urb-jax train --resume run --results-dir {tmp_path}" in msg
+
+
+@pytest.mark.slow
+def test_a_run_out_of_memory_mid_round_exits_with_the_message(confs, tmp_path, monkeypatch):
+    """A MemoryError injected into round 2's SUMO leg of the tiny run: OutOfMemoryError naming the
+    round and leg; the run resumes from round 1's checkpoint."""
+    real = trainer_module.HybridTrainer.sumo_leg
+
+    def failing(self, r, *args):
+        if r == 1:
+            raise MemoryError
+        return real(self, r, *args)
+
+    monkeypatch.setattr(trainer_module.HybridTrainer, "sumo_leg", failing)
+    with pytest.raises(OutOfMemoryError, match=r"out of memory during round 2 of 3: the SUMO leg .*"
+                                               r"hybrid.seed_axis=map.*round 1\) is kept.*--resume m "):
+        train_iql(confs, tmp_path, "m")
+
+
+def test_a_checkpoint_save_that_does_not_finish_is_an_error_not_a_hang(tmp_path):
+    t0 = time.perf_counter()
+    with pytest.raises(UrbJaxError, match=r"did not finish within 0 s.*previous round's checkpoint is kept"):
+        wait_bounded(lambda: time.sleep(30), 0.2, tmp_path)
+    assert time.perf_counter() - t0 < 5
+    with pytest.raises(OSError, match="disk"):  # the wait's own error comes through
+        wait_bounded(lambda: (_ for _ in ()).throw(OSError("disk")), 5, tmp_path)
