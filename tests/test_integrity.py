@@ -23,6 +23,7 @@ from urb_jax.reporting.records import (
     DamagedRecordsError,
     DayRecord,
     RecordsWriter,
+    adopt_undigested_parts,
     damaged_parts,
     digest_path,
     file_sha256,
@@ -81,6 +82,20 @@ def test_every_part_has_its_digest_and_a_damaged_or_missing_one_is_named(tmp_pat
     bad = damaged_parts(tmp_path, 4)
     assert [i for i, _ in bad] == [2, 3]
     assert "part-00002.parquet: does not match its digest" in bad[0][1] and bad[1][1].endswith("missing")
+
+
+def test_parts_of_a_run_from_before_digests_are_adopted_once(tmp_path):
+    """An unfinished run started by a version without record digests resumes: its parts get their
+    digests at the resume (trusted, as they were), and a missing digest after that is damage."""
+    _writer(tmp_path)
+    for d in (tmp_path / PARTS_DIR).glob("*.sha256"):
+        d.unlink()
+    assert adopt_undigested_parts(tmp_path) == 4 and damaged_parts(tmp_path, 4) == []
+    assert adopt_undigested_parts(tmp_path) == 0
+    (tmp_path / PARTS_DIR / "part-00001.sha256").unlink()
+    assert adopt_undigested_parts(tmp_path) == 0
+    assert damaged_parts(tmp_path, 4) == [(1, f"{tmp_path / PARTS_DIR / 'part-00001.parquet'}: its digest "
+                                              "file is missing")]
 
 
 def test_truncate_drops_parts_and_their_digests(tmp_path):

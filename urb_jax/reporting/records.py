@@ -97,6 +97,19 @@ def damage_of(path: Path) -> str | None:
     return None if file_sha256(path) == want else "does not match its digest"
 
 
+def adopt_undigested_parts(folder: str | os.PathLike) -> int:
+    """A run started before record digests (parts, none with a digest): write each part's digest now,
+    trusting the parts as a resume did then, so that the checks from here on cover them. Returns how
+    many were adopted (0: the run has digests, or no parts)."""
+    parts = Path(folder) / PARTS_DIR
+    found = sorted(parts.glob("part-*.parquet"))
+    if not found or any(parts.glob(f"part-*{DIGEST_SUFFIX}")):
+        return 0
+    for p in found:
+        write_bytes(digest_path(p), (file_sha256(p) + "\n").encode())
+    return len(found)
+
+
 def damaged_parts(folder: str | os.PathLike, n_parts: int) -> list[tuple[int, str]]:
     """(index, 'path: why') of each of the first `n_parts` record parts of `folder` that is missing
     or does not match its digest, in order."""

@@ -34,7 +34,13 @@ from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
 from urb_jax.game.mutation import draw_cavs
-from urb_jax.reporting.records import PARTS_DIR, DayRecord, RecordsWriter, damaged_parts
+from urb_jax.reporting.records import (
+    PARTS_DIR,
+    DayRecord,
+    RecordsWriter,
+    adopt_undigested_parts,
+    damaged_parts,
+)
 from urb_jax.sumo_bridge import DayExecutor, DayResult
 from urb_jax.sumo_bridge.memo import MemoExecutor
 from urb_jax.surrogate import SumoSample, build_static, predict
@@ -261,6 +267,10 @@ class HybridTrainer:
         if found is None:
             raise RuntimeError(f"{self.g.folders[0]}: no checkpoint to resume from")
         newest = json.loads((found[1] / "meta.json").read_text())
+        for folder in self.g.folders:
+            if n := adopt_undigested_parts(folder):
+                log.warning("%s: %d record parts from before record digests; their digests are written "
+                            "now and checked from here on", folder, n)
         meta = self.restore(intact_checkpoint(self.g.folders, found[0], newest["record_parts"]))
         for writer, parts in zip(self.writers, meta.record_parts, strict=True):
             writer.truncate(parts)
