@@ -235,6 +235,12 @@ def remove_parts(folder: str | os.PathLike) -> None:
         shutil.rmtree(Path(folder) / PARTS_DIR, ignore_errors=True)
 
 
+def _checked_records(folder: str | os.PathLike) -> pd.DataFrame:
+    """The records metrics are computed from: the merged file, checked (`verified_records`), or the
+    parts of a run that has none (a baseline's, read as `read_records` does)."""
+    return verified_records(folder) if (Path(folder) / RECORDS_FILE).is_file() else read_records(folder)
+
+
 def verified_records(folder: str | os.PathLike) -> pd.DataFrame:
     """records.parquet of `folder`, checked against its digest first (a file from before digests:
     as it is); a mismatch is a DamagedRecordsError: no metric is computed from damaged records."""
@@ -302,7 +308,7 @@ def run_metrics(folder: str | os.PathLike) -> dict[str, float]:
     """A finished run's BenchmarkMetrics row (URB's column names), computed from its records and
     the phase lengths in its exp_config.json; writes nothing (`write_run_metrics` writes the files)."""
     cfg = finished_run_config(folder)
-    metrics = compute_metrics(read_records(folder), int(cfg["human_days"]), int(cfg["training_days"]))
+    metrics = compute_metrics(_checked_records(folder), int(cfg["human_days"]), int(cfg["training_days"]))
     return comparable_metrics(metrics) if is_hybrid(cfg) else metrics
 
 
@@ -312,7 +318,7 @@ def write_run_metrics(folder: Path, human_days: int, training_days: int,
     beside URB's: equity over the humans, atomically) from its records: every run's last step, and
     what `urb-jax metrics` redoes. A `hybrid` run's columns that cover its SUMO training days only
     go under their own names (`comparable.comparable_metrics`). Returns the metrics and the records."""
-    records = verified_records(folder) if (Path(folder) / RECORDS_FILE).is_file() else read_records(folder)
+    records = _checked_records(folder)
     metrics = compute_metrics(records, human_days, training_days)
     metrics = comparable_metrics(metrics) if hybrid else metrics
     out = Path(folder) / "metrics"
