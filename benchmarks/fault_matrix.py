@@ -11,6 +11,18 @@ metrics/BenchmarkMetrics.csv equal the uninterrupted run's byte for byte.
 
 Resumable: finished trials are kept in DIR/trials.json and skipped when run again. Prints a table
 (also written to DIR/fault_matrix.md).
+
+`--integrity` runs the integrity trials instead, on the tests' tiny IQL run (3 rounds, SUMO days
+in SUMO; tests/support/tiny_runs.py): bytes flipped
+at several offsets of a round checkpoint's files, of a record part (the newest, and the human phase's
+first), of a human-day journal entry and of exp_config.json, each in a copy of a run stopped at an
+observed instant and then resumed; and SIGTERM and SIGHUP mid-run, then `--resume`. Each trial's
+outcome is "identical" (records and metrics equal the uninterrupted run's), "refused" (exit 2 with
+a message, no records.parquet or metrics written) or WRONG (anything else); a journal entry is also
+replaced by a copy of another day's entry (readable, but not its day). Table in
+DIR/integrity.md.
+
+    python benchmarks/fault_matrix.py --integrity [--out DIR]
 """
 
 from __future__ import annotations
@@ -29,6 +41,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from support.digests import result_digests
+from support.tiny_runs import tiny_iql_run
 
 HYBRID = {"train_days": 120, "num_envs": 4, "surrogate_days_per_round": 32, "sumo_days_per_round": 4,
           "sumo_updates": 1, "sumo_workers": 2, "calib_human_days": 5, "calib_varied_days": 2,
@@ -164,14 +177,154 @@ def worker_kill_trial(out: Path, at: float) -> dict:
             "resumes": 0, "digest": _digest(folder)}
 
 
+CKPT2 = Path("checkpoints") / "round_00002" / "meta.json"  # round 2's checkpoint is complete
+OFFSETS = (0.1, 0.5, 0.9)  # where in a file a byte is flipped, as a fraction of its length
+
+
+def _start_in(results: Path, confs: dict[str, str], exp_id: str, *extra: str) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "urb_jax.commands.cli", "train", "--results-dir", str(results),
+           "--no-progress", "--id", exp_id, "--alg", "iql", "--task-conf", confs["task_conf"],
+           "--hybrid-conf", confs["hybrid_conf"], "--alg-conf", confs["alg_conf"], *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+
+
+def _stop_at(proc: subprocess.Popen, seen, sig: int) -> tuple[int, str]:
+    """Send `sig` to the run's process group once `seen()` holds; (exit code, last stderr line)."""
+    while proc.poll() is None and not seen():
+        time.sleep(0.01)
+    if proc.poll() is None:
+        os.killpg(proc.pid, sig)
+    err = proc.communicate()[1].strip()
+    return proc.returncode, err.splitlines()[-1][:200] if err else ""
+
+
+def _flip(path: Path, at: float) -> int:
+    data = bytearray(path.read_bytes())
+    i = min(len(data) - 1, int(len(data) * at))
+    data[i] ^= 0xFF
+    path.write_bytes(bytes(data))
+    return i
+
+
+def _outcome(results: Path, exp_id: str, ref: list[str] | None) -> dict:
+    """--resume the run, then judge it: identical, refused (exit 2, a message, no results) or WRONG."""
+    cmd = [sys.executable, "-m", "urb_jax.commands.cli", "train", "--results-dir", str(results),
+           "--no-progress", "--resume", exp_id]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    err = proc.stderr.strip()
+    last = err.splitlines()[-1] if err else ""
+    folder = results / exp_id
+    digest = _digest(folder)
+    if proc.returncode == 0 and digest == ref:
+        outcome = "identical"
+    elif proc.returncode == 2 and last.startswith("urb-jax: error:") and not (
+            (folder / "records.parquet").is_file() or (folder / "metrics").is_dir()):
+        outcome = "refused"
+    else:
+        outcome = "WRONG"
+    warned = [ln for ln in err.splitlines() if ln.startswith("WARNING") and "taking over the lock" not in ln]
+    return {"exit": proc.returncode, "outcome": outcome, "message": (last if proc.returncode else
+                                                                     (warned[0] if warned else ""))[:300]}
+
+
+def integrity(out: Path) -> None:
+    """The integrity trials (module docstring); prints and writes DIR/integrity.md."""
+    out.mkdir(parents=True, exist_ok=True)
+    confs = tiny_iql_run(out)  # the tests' tiny IQL run: 3 rounds of 4 surrogate and 2 SUMO days
+    done_path = out / "trials.json"
+    trials = json.loads(done_path.read_text()) if done_path.is_file() else {}
+    ref_dir = out / "ref"
+    if _digest(ref_dir / "r") is None:
+        shutil.rmtree(ref_dir, ignore_errors=True)
+        proc = _start_in(ref_dir, confs, "r")
+        err = proc.communicate()[1]
+        if proc.returncode != 0:
+            raise SystemExit(f"reference run failed: {err}")
+    ref = _digest(ref_dir / "r")
+    bases = {  # a run stopped at an observed instant, copied for each trial
+        "round2": lambda f: (f / CKPT2).is_file(),
+        "human": lambda f: len(list((f / "human_days.journal").rglob("*.npz"))) >= 6,
+    }
+    for name, seen in bases.items():
+        base = out / f"base_{name}"
+        if not (base / "r" / "exp_config.json").is_file() or not (base / "stopped").is_file():
+            shutil.rmtree(base, ignore_errors=True)
+            proc = _start_in(base, confs, "r")
+            _stop_at(proc, lambda seen=seen, base=base: seen(base / "r"), signal.SIGKILL)
+            if json.loads((base / "r" / "exp_config.json").read_text()).get("status") == "done":
+                raise SystemExit(f"{base}: the run finished before it was stopped; use more rounds")
+            (base / "stopped").write_text("")
+
+    def files(f: Path) -> dict[str, Path]:
+        ckpt = f / "checkpoints" / "round_00002"
+        state = max((p for p in (ckpt / "state").rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
+        parts = sorted((f / "records.parts").glob("part-*.parquet"))
+        return {"checkpoint sumo_days.npz": ckpt / "sumo_days.npz", "checkpoint state (largest file)": state,
+                "records part (newest)": parts[-1], "records part (human phase)": parts[0],
+                "exp_config.json": f / "exp_config.json"}
+
+    plan: list[tuple[str, str, str, float]] = []  # (trial, base, file, offset)
+    for what in ("checkpoint sumo_days.npz", "checkpoint state (largest file)", "records part (newest)",
+                 "records part (human phase)", "exp_config.json"):
+        plan += [(f"{what} @{at}", "round2", what, at) for at in OFFSETS]
+    plan += [(f"journal entry @{at}", "human", "journal entry", at) for at in OFFSETS]
+    plan.append(("journal entry replaced by another day's", "human", "journal swap", 0.0))
+    for trial, base_name, what, at in plan:
+        if trial in trials:
+            continue
+        results = out / "trials" / "".join(c if c.isalnum() or c in "._" else "_" for c in trial)
+        shutil.rmtree(results, ignore_errors=True)
+        shutil.copytree(out / f"base_{base_name}", results)
+        folder = results / "r"
+        entries = sorted((folder / "human_days.journal").rglob("*.npz"))
+        if what == "journal swap":  # a valid entry of another day under this day's name
+            shutil.copy(entries[3], entries[2])
+            how = "journal entry replaced by a copy of another day's entry"
+        else:
+            target = entries[2] if what == "journal entry" else files(folder)[what]
+            how = f"flip byte {_flip(target, at)} of {what} ({at:.0%} in)"
+        t = {"trial": how, "stop_exit": "SIGKILL", **_outcome(results, "r", ref)}
+        trials[trial] = t
+        done_path.write_text(json.dumps(trials, indent=1))
+        print(f"{t['trial']}: exit {t['exit']}, {t['outcome']}: {t['message'][:120]}", flush=True)
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        trial = f"{sig.name} mid-run"
+        if trial in trials:
+            continue
+        results = out / "trials" / sig.name
+        shutil.rmtree(results, ignore_errors=True)
+        proc = _start_in(results, confs, "r")
+        rc, msg = _stop_at(proc, lambda r=results: (r / "r" / CKPT2).is_file(), sig)
+        t = {"trial": f"{sig.name} after round 2's checkpoint, then --resume", "stop_exit": rc,
+             **_outcome(results, "r", ref)}
+        t["message"] = f"stop: {msg[:150]}" + (f"; resume: {t['message']}" if t["message"] else "")
+        trials[trial] = t
+        done_path.write_text(json.dumps(trials, indent=1))
+        print(f"{t['trial']}: stop exit {rc}, resume exit {t['exit']}, {t['outcome']}", flush=True)
+    rows = ["| trial | stop exit | resume exit | outcome | message |", "|---|---|---|---|---|"]
+    for t in trials.values():
+        msg = t["message"].replace(f"{out / 'trials'}/", "").replace("|", "/")  # paths from the trial folder
+        rows.append(f"| {t['trial']} | {t['stop_exit']} | {t['exit']} | {t['outcome']} | {msg} |")
+    counts = {o: sum(t["outcome"] == o for t in trials.values()) for o in ("identical", "refused", "WRONG")}
+    table = "\n".join([*rows, "", ", ".join(f"{k}: {v}" for k, v in counts.items())]) + "\n"
+    (out / "integrity.md").write_text(table)
+    print(table)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kills", type=int, default=20)
     ap.add_argument("--sigints", type=int, default=5)
     ap.add_argument("--out", default="benchmarks/out/fault_matrix")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--integrity", action="store_true",
+                    help="run the integrity trials (corrupted files, SIGTERM and SIGHUP) instead")
     args = ap.parse_args()
     out = Path(args.out)
+    if args.integrity:
+        integrity(out / "integrity")
+        return
     out.mkdir(parents=True, exist_ok=True)
     (out / "hybrid.json").write_text(json.dumps(HYBRID))
     ref = reference(out)
