@@ -36,8 +36,10 @@ from urb_jax.sumo_bridge import SumoConfig
 from urb_jax.sumo_bridge.keys import day_key
 from urb_jax.sumo_bridge.memo import MemoExecutor
 from urb_jax.sumo_bridge.types import ARRIVED, DayResult
-from urb_jax.training.checkpoints import CKPT_DIR, wait_bounded
+from urb_jax.surrogate.calibrate import SumoSample
+from urb_jax.training.checkpoints import CKPT_DIR, RoundMeta, save_round, wait_bounded
 from urb_jax.training.hybrid import trainer as trainer_module
+from urb_jax.training.hybrid.trainer import check_group_records
 
 N = 6
 
@@ -124,6 +126,25 @@ def test_metrics_only_from_a_merged_file_that_matches_its_digest(tmp_path):
     with pytest.raises(DamagedRecordsError, match=r"records.parquet: does not match its digest; no metric"):
         write_run_metrics(tmp_path, 2, 1)
     assert not (tmp_path / "metrics").exists()
+
+
+def test_a_later_seed_groups_records_are_checked_before_the_first_group_trains(tmp_path):
+    """check_group_records (what a multi-group --resume runs for every group after the first):
+    intact, or damage a kept checkpoint comes before, passes quietly; damage none comes before is
+    refused, naming the file."""
+    folder = tmp_path / "g"
+    _writer(folder)  # parts 0-3
+    for r, parts in ((1, 3), (2, 4)):
+        meta = RoundMeta(r, r, [0], [folder.name], [parts], [[{"round": i + 1} for i in range(r)]], 5, 0.0)
+        save_round(folder, {"w": np.zeros(2, np.float32)}, [SumoSample(np.zeros((1, 2), np.int32),
+                                                                       np.zeros((1, 2), np.float32),
+                                                                       np.ones((1, 2), bool))], meta)
+    check_group_records([folder])
+    _flip(folder / PARTS_DIR / "part-00003.parquet")
+    check_group_records([folder])  # round 1's checkpoint counts parts 0-2: its own start falls back
+    _flip(folder / PARTS_DIR / "part-00001.parquet")
+    with pytest.raises(UrbJaxError, match=r"part-00001.parquet: does not match its digest.*no kept"):
+        check_group_records([folder])
 
 
 @pytest.mark.slow

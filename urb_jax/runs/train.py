@@ -76,7 +76,7 @@ from urb_jax.training.human_phase import (
     surrogate_human_days,
 )
 from urb_jax.training.hybrid.plan import HybridConfig
-from urb_jax.training.hybrid.trainer import Stopped, TrainSummary, train_group
+from urb_jax.training.hybrid.trainer import Stopped, TrainSummary, check_group_records, train_group
 
 
 def make_executor(hyb: HybridConfig, log_dir: Path, kind: str = "pool",
@@ -193,6 +193,10 @@ def resume_train(req: ResumeRequest, *, executor: DayExecutor | None = None) -> 
         for name in (n for g in groups for n in g):
             remove_parts(results_dir / name)  # a kill after the last exp_config write left them
         raise UrbJaxError(f"{folder}: this run is already complete.")
+    for group in unfinished[1:]:  # refused now rather than after the groups ahead of it train
+        for name in group:
+            lock_run(results_dir / name)
+        check_group_records([results_dir / name for name in group])
     return [r for group in unfinished for r in _resume_group(group, req, executor)]
 
 

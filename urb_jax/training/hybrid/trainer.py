@@ -533,7 +533,22 @@ def train_group(
     return trainer.summaries(aon)
 
 
-def intact_checkpoint(folders: Sequence[Path], newest: int, newest_parts: Sequence[int]) -> int:
+def check_group_records(folders: Sequence[Path]) -> None:
+    """A seed group's records as its resume will find them, checked now: a multi-group `--resume`
+    checks every unfinished group before it trains the first, so a group whose records would be
+    refused is refused before the groups ahead of it train (a group that can fall back is left to
+    its own start, which says so)."""
+    found = verified_checkpoint(folders[0])
+    if found is None:
+        return
+    newest = json.loads((found[1] / "meta.json").read_text())
+    for folder in folders:
+        adopt_undigested_parts(folder)
+    intact_checkpoint(folders, found[0], newest["record_parts"], quiet=True)
+
+
+def intact_checkpoint(folders: Sequence[Path], newest: int, newest_parts: Sequence[int],
+                      quiet: bool = False) -> int:
     """The rounds done of the newest kept checkpoint, at most `newest`, whose record parts are all
     intact in every seed's folder (`records.damaged_parts`). A damaged or missing part is named (a
     warning: run.log) and a checkpoint from before it is used, its later parts written again; none
@@ -554,8 +569,9 @@ def intact_checkpoint(folders: Sequence[Path], newest: int, newest_parts: Sequen
         if damaged_files(ckpt, meta):
             continue
         if all(n <= f for n, f in zip(meta["record_parts"], first_bad, strict=True)):
-            log.warning("damaged records (%s): resuming from the checkpoint after round %d, whose records "
-                        "are intact; the days after it are run again", named, rounds_done)
+            if not quiet:
+                log.warning("damaged records (%s): resuming from the checkpoint after round %d, whose "
+                            "records are intact; the days after it are run again", named, rounds_done)
             return rounds_done
     raise UrbJaxError(
         f"{folders[0]}: damaged records ({named}); no kept checkpoint comes before them, so the run cannot "
