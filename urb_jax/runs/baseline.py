@@ -41,6 +41,7 @@ from urb_jax.runs.urb_configs import (
     run_overrides,
 )
 from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, MemoExecutor
+from urb_jax.sumo_bridge.memo import day_store
 from urb_jax.training.human_phase import (
     check_replayable,
     load_replay,
@@ -106,7 +107,7 @@ def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, A
     write_config(folder, config)
     with stops_cleanly([folder], resumable=False):
         return _run_baseline_days(folder, config, scn, task, env, policy, req.env_seed, executor, results_dir,
-                                  human_phase_from, req.progress, t0)
+                                  human_phase_from, req.progress, t0, req.day_store)
 
 
 def _baseline_configs(req: BaselineRequest, task_overrides: dict[str, Any] | None
@@ -133,11 +134,12 @@ def _baseline_configs(req: BaselineRequest, task_overrides: dict[str, Any] | Non
 def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task: TaskConfig,
                        env: EnvConfig, policy: CavPolicy, env_seed: int, executor: DayExecutor | None,
                        results_dir: Path, human_phase_from: str | None, progress: bool,
-                       t0: float) -> RunResult:
+                       t0: float, stored: bool) -> RunResult:
     writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
     # SUMO's warnings go to the run's sumo.log, not the terminal
     inner = InProcessExecutor(log_file=folder / "sumo.log") if executor is None else executor
-    memo = MemoExecutor(inner)  # a repeated day (AON CAVs, frozen humans) runs once
+    store = day_store(inner, stored)  # days already paid for by any run are read back
+    memo = MemoExecutor(store)  # a repeated day (AON CAVs, frozen humans) runs once
     H, T = task.human_learning_episodes, task.training_eps
     days: DayExecutor = load_replay(results_dir / human_phase_from, config, scn.agent_id, H, memo
                                     ) if human_phase_from else memo
@@ -150,7 +152,8 @@ def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task
     writer.close()
     metrics, phases = write_outputs(folder, H, T)
     wall = time.perf_counter() - t0
-    mark_done(folder, config, **phases, wall_time_s=round(wall, 2), sumo_days_run=memo.simulated,
-              sumo_days_repeated=memo.reused)
+    from_store = store.reused if isinstance(store, MemoExecutor) else 0
+    mark_done(folder, config, **phases, wall_time_s=round(wall, 2), sumo_days_run=memo.simulated - from_store,
+              sumo_days_repeated=memo.reused, sumo_days_from_store=from_store)
     return RunResult(folder, metrics, wall, days=H + T + task.test_eps,
                      replayed_days=H if human_phase_from else 0)

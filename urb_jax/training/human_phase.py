@@ -153,7 +153,10 @@ def _human_model(scn: Scenario, cfg: HybridConfig, choices: list[np.ndarray], re
 def journal(executor: DayExecutor, folder: Path) -> MemoExecutor:
     """`executor` behind the one day cache, stored in folder/human_days.journal/: a stopped run
     starting again reads back the days it already ran, and a day that repeats one already run
-    (converged deterministic humans: saint_arnoult, 66 of 208 days) is that SUMO day, read back."""
+    (converged deterministic humans: saint_arnoult, 66 of 208 days) is that SUMO day, read back.
+    An executor already behind the day store (`sumo_bridge.memo.day_store`) is its own journal."""
+    if isinstance(executor, MemoExecutor) and executor.stored:
+        return executor
     return MemoExecutor(executor, store_dir=folder / JOURNAL_DIR)
 
 
