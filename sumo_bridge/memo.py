@@ -24,7 +24,7 @@ import logging
 import os
 import time
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import cast
 
@@ -35,7 +35,7 @@ from urb_jax.core.atomic import write_npz
 from urb_jax.core.paths import cache_dir, day_store_bytes
 from urb_jax.sumo_bridge.batch import as_batch
 from urb_jax.sumo_bridge.config import SumoConfig
-from urb_jax.sumo_bridge.keys import day_key, scenario_key
+from urb_jax.sumo_bridge.keys import day_key, scenario_key, sumo_version
 from urb_jax.sumo_bridge.types import DayExecutor, DayResult
 
 log = logging.getLogger(__name__)
@@ -180,6 +180,34 @@ def day_store(inner: DayExecutor, enabled: bool = True) -> DayExecutor:
     if cap == 0:
         return inner
     return MemoExecutor(inner, store_dir=day_store_dir(), max_bytes=cap)
+
+
+class LazyExecutor:
+    """A `DayExecutor` made by `make()` on its first batch, so that a run whose days are all in the
+    day store starts no SUMO process (a pool's workers take seconds to start). `config`: the
+    SumoConfig the made executor will run with (part of every day's key before it exists)."""
+
+    def __init__(self, make: Callable[[], DayExecutor], config: SumoConfig) -> None:
+        self._make = make
+        self.config = config
+        self.executor: DayExecutor | None = None
+
+    @property
+    def simulator(self) -> str:
+        return sumo_version()
+
+    def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
+                 is_cav: np.ndarray | None = None) -> list[DayResult]:
+        if self.executor is None:
+            self.executor = self._make()
+            made = getattr(self.executor, "config", None)
+            if made != self.config:
+                raise ValueError(f"LazyExecutor: the executor made runs {made}, not {self.config}")
+        return self.executor.run_days(scenario, choices, seeds, is_cav)
+
+    def close(self) -> None:
+        if self.executor is not None:
+            self.executor.close()
 
 
 def is_stored(executor: DayExecutor) -> bool:

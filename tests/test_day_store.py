@@ -193,6 +193,29 @@ def test_train_runs_behind_the_store_unless_told_not_to(store):
         assert ex is fake
 
 
+def test_sumo_starts_only_for_a_day_not_in_the_store(grid_scenario, store):
+    """Behind the store a train run's executor is made on its first missing day: a run whose days
+    are all stored starts no SUMO process."""
+    scn, made = grid_scenario, []
+
+    def make():
+        made.append(FakeExecutor(simulator=keys.sumo_version()))
+        made[-1].config = SumoConfig()
+        return made[-1]
+
+    seed_store = FakeExecutor(simulator=keys.sumo_version())
+    MemoExecutor(seed_store, store_dir=store, config=SumoConfig()).run_days(scn, _choices(scn, 0)[None], [42])
+    lazy = memo.LazyExecutor(make, SumoConfig())
+    stored = day_store(lazy)
+    stored.run_days(scn, _choices(scn, 0)[None], [42])
+    assert made == []  # all in the store: nothing started
+    stored.run_days(scn, _choices(scn, 1)[None], [42])
+    assert len(made) == 1 and len(made[0].batches) == 1
+    other = memo.LazyExecutor(make, SumoConfig(stuck_rule="routerl"))  # keys must be the made one's
+    with pytest.raises(ValueError, match="LazyExecutor"):
+        other.run_days(scn, _choices(scn, 2)[None], [42])
+
+
 @pytest.mark.slow  # three tiny runs: ~30 s on a loaded 2-core machine
 def test_a_run_is_the_same_bytes_with_the_store_off_cold_and_warm(confs, tmp_path, store, tiny_iql_reference):
     """The reference ran without the store (a FakeExecutor without `simulator`); the same run with the

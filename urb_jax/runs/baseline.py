@@ -16,6 +16,7 @@ from urb_jax.core.choices import BASELINE_SECTIONS, DEFAULT_NETWORK
 from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.configio import in_section
 from urb_jax.core.errors import ConfigError
+from urb_jax.core.paths import day_store_bytes
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env, load_task
 from urb_jax.reporting.records import RecordsWriter
 from urb_jax.reporting.urb_names import baseline_names
@@ -81,6 +82,8 @@ def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, A
     """Every day in SUMO with `policy`; `labels_of(task)`: what exp_config.json calls the policy; the
     default id is `id_prefix`_<network>_<task>_s<env seed>."""
     enable_compile_cache()
+    if req.day_store:
+        day_store_bytes()  # a bad $URB_JAX_DAY_STORE_GB stops the run before it starts
     net = req.net or DEFAULT_NETWORK
     loaded, task_overrides = _baseline_configs(req, task_overrides)
     task, task_path = loaded["task"].config, loaded["task"].path

@@ -60,8 +60,8 @@ from urb_jax.runs.urb_configs import (
     run_overrides,
     train_override_record,
 )
-from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoPool
-from urb_jax.sumo_bridge.memo import day_store
+from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoConfig, SumoPool
+from urb_jax.sumo_bridge.memo import LazyExecutor, day_store
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 from urb_jax.training.checkpoints import checkpoint_meta, latest_checkpoint
 from urb_jax.training.human_phase import (
@@ -99,7 +99,11 @@ def _executor(given: DayExecutor | None, hyb: HybridConfig, log_dir: Path, kind:
     if given is not None:
         yield day_store(given, stored)
         return
-    executor = make_executor(hyb, log_dir, kind, ray_address)
+    # behind the store, SUMO's processes start with the first day not in it (none: never)
+    def make() -> DayExecutor:
+        return make_executor(hyb, log_dir, kind, ray_address)
+
+    executor = LazyExecutor(make, SumoConfig()) if stored and day_store_bytes() else make()
     try:
         yield day_store(executor, stored)
     finally:

@@ -15,9 +15,10 @@ simulation); later days go to the wrapped executor.
   calibration days from the file.
 
 A run's own human phase is journaled (`journal`: the one day cache, on disk in the run's first
-folder), so a run stopped before its first checkpoint resumes by simulating the phase
-again with every day already done read back (SUMO days are deterministic: the same records). The
-journal goes when every folder of the run is done (`urb_jax.runs.train.drop_journal`).
+folder; behind the SUMO day store, the store itself), so a run stopped before its first checkpoint
+resumes by simulating the phase again with every day already done read back (SUMO days are
+deterministic: the same records). The journal goes when every folder of the run is done
+(`urb_jax.runs.train.drop_journal`).
 """
 
 from __future__ import annotations
