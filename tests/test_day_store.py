@@ -236,3 +236,23 @@ def test_a_run_is_the_same_bytes_with_the_store_off_cold_and_warm(confs, tmp_pat
     assert 0 < ran <= sum(len(b) for b, _ in ref_ex.batches)
     # the opt-out runs every day SUMO would have run without a store
     assert [b.tolist() for b, _ in off_ex.batches] == [b.tolist() for b, _ in ref_ex.batches]
+
+
+def test_a_second_baseline_reads_every_day_from_the_store(tmp_path, store):
+    import json
+
+    from urb_jax.runs.baseline import run_baseline
+    from urb_jax.runs.request import BaselineRequest
+
+    overrides = {"human_learning_episodes": 6, "training_eps": 8, "test_eps": 4}
+    outs, executors = [], []
+    for exp_id, stored in (("first", True), ("second", True)):
+        executors.append(FakeExecutor(simulator="fake-baseline"))
+        outs.append(run_baseline(BaselineRequest(model="aon", exp_id=exp_id, results_dir=str(tmp_path),
+                                                 progress=False, day_store=stored),
+                                 executor=executors[-1], task_overrides=overrides))
+    cfgs = [json.loads((o.folder / "exp_config.json").read_text()) for o in outs]
+    ran = [sum(len(b) for b, _ in ex.batches) for ex in executors]
+    assert cfgs[0]["sumo_days_run"] == ran[0] > 0 and cfgs[0]["sumo_days_from_store"] == 0
+    assert ran[1] == 0 and cfgs[1]["sumo_days_run"] == 0 and cfgs[1]["sumo_days_from_store"] == ran[0]
+    assert len({result_digests(o.folder) for o in outs}) == 1
