@@ -17,6 +17,7 @@ from typing import Any
 from urb_jax.algorithms.registry import algorithm
 from urb_jax.core.configio import Loaded, in_section
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.paths import day_store_bytes
 from urb_jax.reporting.urb_names import train_names
 from urb_jax.runs.folder import (
     CONFIG_FILE,
@@ -45,6 +46,8 @@ class TrainPlan:
 def plan_train(req: TrainRequest) -> TrainPlan:
     """What `run.run_train(req)` would run; raises the error it would stop on."""
     check_logger(req.log)
+    if req.day_store:
+        day_store_bytes()  # the SUMO day store's cap ($URB_JAX_DAY_STORE_GB)
     req = req.resolved()
     setup = load_setup(req)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode)
