@@ -2,13 +2,18 @@
 
 The scenario key hashes the content SUMO sees (network file bytes, route table, agents), not a
 path or an object id, so it names a loaded scenario in a worker, the route file on /dev/shm and
-cached days on disk alike. The day key adds everything else that changes a day.
+cached days on disk alike. The day key adds everything else that changes a day: the choices, the
+CAV mask, the seed, every SumoConfig option but where files live (with the bytes of its additional
+files), which SUMO runs it (`sumo_version`), and the source of the modules that turn a SUMO run
+into a DayResult (`DAY_CODE`), so that a changed SUMO or a changed day never reads a stored one.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
+import importlib.metadata
 import weakref
 from pathlib import Path
 
@@ -40,19 +45,52 @@ def scenario_key(scenario: Scenario) -> str:
     return key
 
 
+# The modules whose code decides a day's DayResult from the inputs above (insertion, stuck rule,
+# tripinfo parsing, the stored file's fields): an edit to any of them starts fresh keys.
+DAY_MODULES = ("sim.py", "tripinfo.py", "config.py", "types.py", "batch.py", "memo.py")
+
+
+@functools.cache
+def day_code() -> str:
+    """Hash of the source of `DAY_MODULES` (read once per process)."""
+    h = hashlib.sha256()
+    here = Path(__file__).resolve().parent
+    for name in DAY_MODULES:
+        h.update(name.encode() + b"\0" + (here / name).read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+@functools.cache
+def sumo_version() -> str:
+    """The SUMO that runs days in this process: libsumo's package version (read from its metadata,
+    without importing it), else the version libsumo reports."""
+    try:
+        return f"libsumo {importlib.metadata.version('libsumo')}"
+    except importlib.metadata.PackageNotFoundError:  # a libsumo built from source, on SUMO_HOME
+        from urb_jax.sumo_bridge.sim import import_libsumo
+
+        return str(import_libsumo().simulation.getVersion()[1])
+
+
 def day_key(scenario: Scenario, choices: np.ndarray, seed: int, is_cav: np.ndarray | None,
-            config: SumoConfig | None) -> str:
+            config: SumoConfig | None, simulator: str | None = None) -> str:
     """Hash of everything that changes a SUMO day: the scenario key, choices [N], the CAV mask [N]
-    (None = the Scenario's agent kinds, so both spellings share a key), the seed, and the
-    SumoConfig (None: not known to the caller)."""
+    (None = the Scenario's agent kinds, so both spellings share a key), the seed, the SumoConfig
+    (None: not known to the caller) with its additional files' bytes, what runs the day
+    (`simulator`: `sumo_version()` for SUMO's executors; None: not known) and `day_code()`."""
     h = hashlib.sha256(scenario_key(scenario).encode())
     h.update(check_choices(scenario, choices).tobytes())  # [N] int64
     h.update(cav_mask(scenario, is_cav).tobytes())  # [N] bool
-    h.update(f";seed={int(seed)};config={_config_text(config)}".encode())
-    return h.hexdigest()[:24]
+    h.update(f";seed={int(seed)};config={_config_text(config)};simulator={simulator or '?'}"
+             f";code={day_code()}".encode())
+    return h.hexdigest()[:32]
 
 
+@functools.lru_cache(maxsize=16)
 def _config_text(config: SumoConfig | None) -> str:
     if config is None:
         return "?"
-    return repr(dataclasses.replace(config, shm_dir=""))  # where files live does not change a day
+    text = repr(dataclasses.replace(config, shm_dir=""))  # where files live does not change a day
+    for path in config.additional_files:  # what they hold does
+        text += f";{hashlib.sha256(Path(path).read_bytes()).hexdigest()}"
+    return text

@@ -25,6 +25,7 @@ import numpy as np
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.interrupt import ignore_stop_signals
 from urb_jax.sumo_bridge.config import SumoConfig
+from urb_jax.sumo_bridge.keys import sumo_version
 from urb_jax.sumo_bridge.logs import log_folder, log_tail, redirect_fds
 from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, schedule_days
 from urb_jax.sumo_bridge.sim import Simulator
@@ -116,6 +117,11 @@ class SumoPool:
         self.slots = [self._spawn(i) for i in range(n_workers)]
         for w in self.slots:
             w.wait_ready(self.start_timeout_s)
+
+    @property
+    def simulator(self) -> str:
+        """What runs the days (part of every stored day's key): `keys.sumo_version()`."""
+        return sumo_version()
 
     def _spawn(self, index: int) -> _Worker:
         return _Worker(self._ctx, index, self.config, self.log_dir / f"sumo_worker{index}.log")

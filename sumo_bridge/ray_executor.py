@@ -33,7 +33,7 @@ import numpy as np
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.sumo_bridge.config import SumoConfig
-from urb_jax.sumo_bridge.keys import scenario_key
+from urb_jax.sumo_bridge.keys import scenario_key, sumo_version
 from urb_jax.sumo_bridge.logs import log_folder, log_tail
 from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, schedule_days
 from urb_jax.sumo_bridge.sim import Simulator
@@ -205,6 +205,12 @@ class RayExecutor:
             raise
 
     # --- actors -------------------------------------------------------------------------
+    @property
+    def simulator(self) -> str:
+        """What runs the days (part of every stored day's key): this process's `keys.sumo_version()`
+        (the actors run the same environment, installed or shipped with `runtime_env`)."""
+        return sumo_version()
+
     def _new(self, index: int) -> _Slot:
         log = str(self.log_dir / f"sumo_actor{index}.log")
         return _Slot(index, self._cls.remote(self.config, log, self._extra), log_path=log)

@@ -28,7 +28,7 @@ import numpy as np
 from urb_jax.city.scenario import Scenario
 from urb_jax.sumo_bridge.batch import as_batch, cav_mask, check_choices
 from urb_jax.sumo_bridge.config import SumoConfig
-from urb_jax.sumo_bridge.keys import scenario_key
+from urb_jax.sumo_bridge.keys import scenario_key, sumo_version
 from urb_jax.sumo_bridge.logs import redirect_fds
 from urb_jax.sumo_bridge.tripinfo import insertion_order, parse_tripinfo, route_id, write_routes_file
 from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayResult
@@ -365,6 +365,11 @@ class InProcessExecutor:
     @property
     def config(self) -> SumoConfig:
         return self.sim.config
+
+    @property
+    def simulator(self) -> str:
+        """What runs the days (part of every stored day's key): `keys.sumo_version()`."""
+        return sumo_version()
 
     def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
                  is_cav: np.ndarray | None = None) -> list[DayResult]:

@@ -2,17 +2,20 @@
 
 Every day runs through `sumo_bridge` (the project's one SUMO runner: URB's insertion, travel
 time and stuck semantics, see docs/sumo_bridge.md) and is cached by its one day cache,
-`sumo_bridge.MemoExecutor`, under `$URB_JAX_CACHE/sumo_days/`.
+`sumo_bridge.MemoExecutor`, in the day store every run shares (`$URB_JAX_CACHE/sumo_days/`).
 """
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
-from urb_jax.core.paths import cache_dir
-from urb_jax.sumo_bridge import MemoExecutor, SumoConfig, SumoPool, run_day
+from urb_jax.sumo_bridge import SumoConfig, SumoPool, run_day
 from urb_jax.sumo_bridge.batch import as_batch
+from urb_jax.sumo_bridge.keys import sumo_version
+from urb_jax.sumo_bridge.memo import day_store
 from urb_jax.sumo_bridge.types import DayResult
 
 
@@ -26,6 +29,10 @@ class _PoolPerBatch:
     the batch), or runs them in this process when `workers` <= 1."""
 
     config = SumoConfig()  # the defaults `run_day` and `SumoPool` use
+
+    @property
+    def simulator(self) -> str:
+        return sumo_version()
 
     def __init__(self, workers: int) -> None:
         self.workers = workers
@@ -46,7 +53,8 @@ def sumo_days(
     scn: Scenario, choices: np.ndarray, seeds: np.ndarray | int = 42, *, workers: int = 2,
     use_cache: bool = True,
 ) -> list[DayResult]:
-    """SUMO days for choices [B, N] (cached per scenario + choices + seed), run `workers` at a time."""
-    store = cache_dir() / "sumo_days" if use_cache else None
-    with MemoExecutor(_PoolPerBatch(workers), store_dir=store) as days:
-        return days.run_days(scn, np.asarray(choices), seeds)
+    """SUMO days for choices [B, N] (from the day store unless `use_cache` is False or the store is
+    off: `sumo_bridge.memo.day_store`), the days not stored run `workers` at a time."""
+    batch = as_batch(np.asarray(choices), seeds, None)
+    with contextlib.closing(day_store(_PoolPerBatch(workers), enabled=use_cache)) as days:
+        return days.run_days(scn, batch.choices, list(batch.seeds))

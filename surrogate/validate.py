@@ -13,6 +13,7 @@ import numpy as np
 
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.atomic import write_json, write_npz, write_text
+from urb_jax.sumo_bridge.types import DayResult
 from urb_jax.surrogate.calibrate import FitConfig, SumoSample, calibrate
 from urb_jax.surrogate.data import make_choices
 from urb_jax.surrogate.model import SurrogateConfig, build_static, init_params, predict_jit
@@ -27,6 +28,13 @@ class ValidationConfig:
     noise_agents: int = 10  # of those, how many are re-simulated with a second SUMO seed
     seed: int = 42  # SUMO seed (URB: env_seed, same every day)
     workers: int = 2
+    day_store: bool = True  # read and keep SUMO days in the shared day store (sumo_bridge.memo)
+
+
+def _days(vcfg: ValidationConfig, scn: Scenario, choices: np.ndarray, seed: int, workers: int
+          ) -> list[DayResult]:
+    """SUMO days, through the day store unless `vcfg.day_store` is False."""
+    return sumo_days(scn, choices, seed, workers=workers, use_cache=vcfg.day_store)
 
 
 def error_metrics(pred: np.ndarray, sample: SumoSample) -> dict[str, float]:
@@ -110,8 +118,8 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     c_tr, _ = make_choices(scn, static, p0, vcfg.train_days, seed=1)
     c_te, kinds = make_choices(scn, static, p0, vcfg.test_days, seed=2)
     t0 = time.perf_counter()
-    tr = SumoSample.from_days(c_tr, sumo_days(scn, c_tr, vcfg.seed, workers=vcfg.workers))
-    te = SumoSample.from_days(c_te, sumo_days(scn, c_te, vcfg.seed, workers=vcfg.workers))
+    tr = SumoSample.from_days(c_tr, _days(vcfg, scn, c_tr, vcfg.seed, workers=vcfg.workers))
+    te = SumoSample.from_days(c_te, _days(vcfg, scn, c_te, vcfg.seed, workers=vcfg.workers))
     t_sumo = time.perf_counter() - t0
     t0 = time.perf_counter()
     # the smooth model alone (no route residual): what the fidelity targets are stated for
@@ -136,7 +144,7 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
 
     agents, dev, dev_meta = _deviations(scn, c_te, kinds, vcfg)
     t0 = time.perf_counter()
-    dev_sumo = np.stack([d.travel_time for d in sumo_days(scn, dev, vcfg.seed, workers=vcfg.workers)])
+    dev_sumo = np.stack([d.travel_time for d in _days(vcfg, scn, dev, vcfg.seed, workers=vcfg.workers)])
     t_dev = time.perf_counter() - t0
     models = {"surrogate": (pred, surrogate(dev)), "free_flow": (fft, free_flow_times(scn, dev)),
               "uncalibrated": (pred0, uncalibrated(dev))}
@@ -218,8 +226,8 @@ def _noise_floor(scn: Scenario, vcfg: ValidationConfig, noise_agents: np.ndarray
     if not sel:
         return {}
     bds = sorted({dev_meta[r][0] for r in sel})
-    base2 = {bd: sumo_days(scn, c_te[bd:bd + 1], vcfg.seed + 1, workers=1)[0].travel_time for bd in bds}
-    dev2 = np.stack([d.travel_time for d in sumo_days(scn, dev[sel], vcfg.seed + 1, workers=vcfg.workers)])
+    base2 = {bd: _days(vcfg, scn, c_te[bd:bd + 1], vcfg.seed + 1, workers=1)[0].travel_time for bd in bds}
+    dev2 = np.stack([d.travel_time for d in _days(vcfg, scn, dev[sel], vcfg.seed + 1, workers=vcfg.workers)])
     base2_days = np.full(te.travel_time.shape, np.nan)  # [D, N] float64 as SUMO gives, the base days again
     for bd in bds:
         base2_days[bd] = base2[bd]

@@ -14,8 +14,10 @@ SHARED_NETWORKS = REPO.parent / "shared" / "networks"
 
 @pytest.fixture(scope="session", autouse=True)
 def _isolated_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
-    """Tests never read or pollute the user's route cache."""
+    """Tests never read or pollute the user's route cache; the SUMO day store is off, so that a test
+    comparing two runs' SUMO days runs both (tests/test_day_store.py turns it on where it tests it)."""
     os.environ["URB_JAX_CACHE"] = str(tmp_path_factory.mktemp("urb-jax-cache"))
+    os.environ["URB_JAX_DAY_STORE_GB"] = "0"
 
 
 @pytest.fixture(scope="session")

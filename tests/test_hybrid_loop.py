@@ -222,3 +222,19 @@ def test_sumo_row_under_full_autonomy_has_no_human_mean():
     assert np.isnan(full["sumo_time_hdv"]) and full["sumo_time_cav"] == pytest.approx(27 / 6)
     assert mixed["sumo_time_hdv"] == pytest.approx((4 + 5 + 5 + 7) / 4)
     assert mixed["sumo_time_cav"] == pytest.approx(3.0)
+
+
+def test_the_dry_run_states_the_budget_the_run_trains(tiny_iql_reference, confs, tmp_path):
+    """Rounds are whole: the dry run's budget line gives the training days the run then records
+    (and says when that is more than asked)."""
+    from urb_jax.runs.dry_run import describe, plan_train
+    from urb_jax.runs.request import TrainRequest
+
+    out, _ = tiny_iql_reference
+    cfg = json.loads((out.folder / "exp_config.json").read_text())
+    trained = cfg["sumo_training_days"] + cfg["surrogate_training_days"]
+    plan = plan_train(TrainRequest(alg="iql", exp_id="dry", results_dir=str(tmp_path), **confs))
+    (line,) = [x for x in describe(plan) if x.startswith("budget")]
+    assert f"= {trained:,} training days" in line
+    asked = plan.setup.hyb.train_days
+    assert (f"({asked:,} asked; rounds are whole" in line) == (trained != asked)

@@ -49,10 +49,13 @@ class FakeDay:
 class FakeExecutor:
     """DayExecutor on FakeDay; remembers every batch and can fail on a chosen call (a kill)."""
 
-    def __init__(self, fail_on_call: int | None = None) -> None:
+    def __init__(self, fail_on_call: int | None = None, simulator: str | None = None) -> None:
         self.day = FakeDay()
         self.batches: list[tuple[np.ndarray, np.ndarray | None]] = []
         self.fail_on_call = fail_on_call
+        # what runs its days, for the SUMO day store (sumo_bridge.memo.day_store): None keeps its
+        # days out of the store, a name lets a test store them (under keys no SUMO day has)
+        self.simulator = simulator
 
     def run_days(self, scenario, choices, seeds, is_cav=None):
         if self.fail_on_call is not None and len(self.batches) + 1 == self.fail_on_call:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 
 from urb_jax.core.choices import DEFAULT_NETWORK
-from urb_jax.core.paths import NETWORKS_ENV
+from urb_jax.core.paths import CACHE_ENV, DAY_STORE_ENV, NETWORKS_ENV
 
 
 def add_network_flags(parser: argparse.ArgumentParser) -> None:
@@ -38,3 +38,10 @@ def add_networks_dir(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--networks-dir", default=None,
                         help=f"folder of URB networks (searched before ${NETWORKS_ENV} "
                              "and the embedded networks)")
+
+
+def add_day_store_flag(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--no-day-store", action="store_true",
+                        help=f"run every SUMO day in SUMO: neither read nor write the SUMO day store shared "
+                             f"by every run (${CACHE_ENV}/sumo_days; {DAY_STORE_ENV}=0 turns it off for "
+                             "every command; docs/sumo_bridge.md)")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from urb_jax.commands.common import add_day_store_flag
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
@@ -21,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", default=None, help="report folder (default: RESULTS_DIR/suite_<file stem>); "
                                                        "with --paper the page (default: docs/paper.md)")
     parser.add_argument("--no-progress", action="store_true", help="plain progress lines only")
+    add_day_store_flag(parser)
     parser.add_argument("--report-only", action="store_true", help="write the report of the finished runs")
     parser.add_argument("--paper", action="store_true",
                         help="write docs/paper.md: every paper catalogue entry's finished runs under "
@@ -70,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         folders = run_suite(spec.runs, results, progress=not args.no_progress,
                             log=lambda line: print(line, flush=True),
-                            recorded=_recorded(args).get(args.suite, set()))
+                            recorded=_recorded(args).get(args.suite, set()), day_store=not args.no_day_store)
     out = Path(args.out) if args.out else results / f"suite_{Path(args.suite).stem}"
     print(f"report: {write_report(spec.title, folders, out, spec.preamble)}")
     return 0

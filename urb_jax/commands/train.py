@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from urb_jax.commands.common import add_network_flags, add_set_flag
+from urb_jax.commands.common import add_day_store_flag, add_network_flags, add_set_flag
 from urb_jax.core.choices import ALGORITHM_URB_NAMES, EXECUTORS, LOGGERS, MODES, TRAIN_SECTIONS, URB_ALIASES
 from urb_jax.runs.request import ResumeRequest, TrainRequest, repeated_seed
 
@@ -49,6 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--results-dir", default="results", help="results root (default ./results)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing results with this id")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_day_store_flag(parser)
     parser.add_argument("--log", choices=LOGGERS, default=None,
                         help="also log each round (rounds.csv's values) live to results/<id>/tensorboard/ "
                              "(needs pip install 'urb-jax[tensorboard]'); --resume keeps the recorded choice")
@@ -72,7 +73,8 @@ def request_of(args: argparse.Namespace) -> TrainRequest:
         mode=args.mode, train_days=args.train_days, exp_id=args.id, networks_dir=args.networks_dir,
         human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,
         overrides=tuple(args.overrides or ()), executor=args.executor or "pool", ray_address=args.ray_address,
-        log=args.log, results_dir=args.results_dir, overwrite=args.overwrite, progress=not args.no_progress)
+        log=args.log, results_dir=args.results_dir, overwrite=args.overwrite, progress=not args.no_progress,
+        day_store=not args.no_day_store)
 
 
 def resume_request_of(args: argparse.Namespace) -> ResumeRequest:
@@ -80,7 +82,7 @@ def resume_request_of(args: argparse.Namespace) -> ResumeRequest:
     return ResumeRequest(
         exp_id=args.resume, results_dir=args.results_dir, networks_dir=args.networks_dir,
         executor=args.executor, ray_address=args.ray_address, overrides=tuple(args.overrides or ()),
-        log=args.log, progress=not args.no_progress)
+        log=args.log, progress=not args.no_progress, day_store=not args.no_day_store)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from urb_jax.commands.common import add_network_flags
+from urb_jax.commands.common import add_day_store_flag, add_network_flags
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,6 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--workers", type=int, default=2, help="SUMO days run in parallel (default 2)")
     parser.add_argument("--out", default=None,
                         help="results folder (default results/surrogate_validation/<net>)")
+    add_day_store_flag(parser)
     parser.set_defaults(func=run)
 
 
@@ -33,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("results") / "surrogate_validation" / scn.name
     vcfg = ValidationConfig(train_days=args.train_days, test_days=args.days,
                             deviation_agents=args.agents, noise_agents=max(1, args.agents // 3),
-                            seed=args.env_seed, workers=args.workers)
+                            seed=args.env_seed, workers=args.workers,
+                            day_store=not args.no_day_store)
     metrics = validate(scn, out, vcfg)
     print(json.dumps({"held_out": metrics["held_out"], "route_agreement": metrics["route_agreement"]},
                      indent=2))

@@ -13,6 +13,8 @@ from urb_jax.core.errors import UrbJaxError
 
 NETWORKS_ENV = "URB_JAX_NETWORKS"
 CACHE_ENV = "URB_JAX_CACHE"
+DAY_STORE_ENV = "URB_JAX_DAY_STORE_GB"  # the SUMO day store's cap in GB; 0 (or off) turns the store off
+DAY_STORE_GB = 2.0  # its default
 
 
 def embedded_networks_dir() -> Path:
@@ -59,6 +61,26 @@ def cache_dir() -> Path:
                           "folder for urb-jax's caches.")
     return writable_dir(Path.home() / ".cache" / "urb-jax", "urb-jax's cache folder (~/.cache/urb-jax)",
                         f"make it writable, or set {CACHE_ENV} to a folder you can write to")
+
+
+def day_store_bytes() -> int:
+    """The SUMO day store's cap in bytes: $URB_JAX_DAY_STORE_GB gigabytes (default 2; 0 or off: no
+    store); a value that is not a number of gigabytes >= 0 is a UrbJaxError naming the variable and
+    the fix."""
+    text = os.environ.get(DAY_STORE_ENV, "").strip()
+    if not text:
+        return int(DAY_STORE_GB * 1e9)
+    if text.lower() in ("off", "no", "false", "none"):
+        return 0
+    try:
+        gb = float(text)
+    except ValueError:
+        gb = float("nan")
+    if not gb >= 0 or gb == float("inf"):
+        raise UrbJaxError(f"{DAY_STORE_ENV}={text!r}: not a size in gigabytes. Fix: set {DAY_STORE_ENV} "
+                          f"to the SUMO day store's cap in GB, e.g. {DAY_STORE_GB:g} (0 or off turns the "
+                          "store off), or unset it for the default.")
+    return int(gb * 1e9)
 
 
 _writable: set[Path] = set()  # folders writable_dir has checked in this process

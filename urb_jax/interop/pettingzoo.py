@@ -85,7 +85,8 @@ class _SumoDays:
         self.possible_agents = [str(int(scenario.agent_id[i])) for i in self.cav_index]
         self._pos = dict(zip(self.possible_agents, range(len(self.possible_agents)), strict=True))
         self.spec = self.game.obs_spec
-        self._drawn: tuple[int, jax.Array] | None = None  # (day, its human draws) a day's end made
+        # (day, its human draws, its end key) that the previous day's end made
+        self._drawn: tuple[int, jax.Array, jax.Array] | None = None
         self._observations = IncrementalObservations(self.spec)
         high = np.finfo(np.float32).max
         self._obs_space = gymnasium.spaces.Box(0.0, high, shape=(self.spec.size,), dtype=np.float32)
@@ -118,10 +119,10 @@ class _SumoDays:
         if seed is not None:
             self._key, self._drawn = jax.random.PRNGKey(seed), None
         self.day += 1
-        k_act, self._k_end = _day_keys(self._key, self.day)
         if self._drawn is not None and self._drawn[0] == self.day:
-            drawn = self._drawn[1]
+            _, drawn, self._k_end = self._drawn
         else:
+            k_act, self._k_end = _day_keys(self._key, self.day)
             drawn = act_jit(k_act, self.humans, self.hp, self.fft)
         self.human_choices = np.asarray(drawn)
         self._observations.reset(self.human_choices)
@@ -147,10 +148,11 @@ class _SumoDays:
         # yesterday's CAV routes and times are not read by the day's end
         today = EnvState(self.humans, jnp.asarray(self.human_choices, jnp.int32), jnp.zeros(0, jnp.int32),
                          jnp.zeros(0, jnp.float32), jnp.asarray(self.day - 1, jnp.int32))
-        keys = DayKeys(self._k_end, _day_keys(self._key, self.day + 1)[0])
+        k_act_next, k_end_next = _day_keys(self._key, self.day + 1)
+        keys = DayKeys(self._k_end, k_act_next)
         cav_actions = jnp.asarray(joint[self.cav_index])
         _, tomorrow, rewards, _, _ = self.game.step_with_times(keys, today, cav_actions, jnp.asarray(times))
-        self.humans, self._drawn = tomorrow.humans, (self.day + 1, tomorrow.human_actions)
+        self.humans, self._drawn = tomorrow.humans, (self.day + 1, tomorrow.human_actions, k_end_next)
         rewards_c, times_c = np.asarray(rewards).tolist(), times[self.cav_index].tolist()
         return (dict(zip(self.possible_agents, rewards_c, strict=True)),
                 {a: {"travel_time": t, "day": self.day} for a, t in zip(self.possible_agents, times_c,

@@ -16,6 +16,7 @@ from urb_jax.core.choices import BASELINE_SECTIONS, DEFAULT_NETWORK
 from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.configio import in_section
 from urb_jax.core.errors import ConfigError
+from urb_jax.core.paths import day_store_bytes
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env, load_task
 from urb_jax.reporting.records import RecordsWriter
 from urb_jax.reporting.urb_names import baseline_names
@@ -41,6 +42,7 @@ from urb_jax.runs.urb_configs import (
     run_overrides,
 )
 from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, MemoExecutor
+from urb_jax.sumo_bridge.memo import day_store
 from urb_jax.training.human_phase import (
     check_replayable,
     load_replay,
@@ -80,6 +82,8 @@ def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, A
     """Every day in SUMO with `policy`; `labels_of(task)`: what exp_config.json calls the policy; the
     default id is `id_prefix`_<network>_<task>_s<env seed>."""
     enable_compile_cache()
+    if req.day_store:
+        day_store_bytes()  # a bad $URB_JAX_DAY_STORE_GB stops the run before it starts
     net = req.net or DEFAULT_NETWORK
     loaded, task_overrides = _baseline_configs(req, task_overrides)
     task, task_path = loaded["task"].config, loaded["task"].path
@@ -106,7 +110,7 @@ def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, A
     write_config(folder, config)
     with stops_cleanly([folder], resumable=False):
         return _run_baseline_days(folder, config, scn, task, env, policy, req.env_seed, executor, results_dir,
-                                  human_phase_from, req.progress, t0)
+                                  human_phase_from, req.progress, t0, req.day_store)
 
 
 def _baseline_configs(req: BaselineRequest, task_overrides: dict[str, Any] | None
@@ -133,11 +137,12 @@ def _baseline_configs(req: BaselineRequest, task_overrides: dict[str, Any] | Non
 def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task: TaskConfig,
                        env: EnvConfig, policy: CavPolicy, env_seed: int, executor: DayExecutor | None,
                        results_dir: Path, human_phase_from: str | None, progress: bool,
-                       t0: float) -> RunResult:
+                       t0: float, stored: bool) -> RunResult:
     writer = RecordsWriter(folder, scn.agent_id, scn.agent_od, scn.agent_depart)
     # SUMO's warnings go to the run's sumo.log, not the terminal
     inner = InProcessExecutor(log_file=folder / "sumo.log") if executor is None else executor
-    memo = MemoExecutor(inner)  # a repeated day (AON CAVs, frozen humans) runs once
+    store = day_store(inner, stored)  # days already paid for by any run are read back
+    memo = MemoExecutor(store)  # a repeated day (AON CAVs, frozen humans) runs once
     H, T = task.human_learning_episodes, task.training_eps
     days: DayExecutor = load_replay(results_dir / human_phase_from, config, scn.agent_id, H, memo
                                     ) if human_phase_from else memo
@@ -150,7 +155,8 @@ def _run_baseline_days(folder: Path, config: dict[str, Any], scn: Scenario, task
     writer.close()
     metrics, phases = write_outputs(folder, H, T)
     wall = time.perf_counter() - t0
-    mark_done(folder, config, **phases, wall_time_s=round(wall, 2), sumo_days_run=memo.simulated,
-              sumo_days_repeated=memo.reused)
+    from_store = store.reused if isinstance(store, MemoExecutor) else 0
+    mark_done(folder, config, **phases, wall_time_s=round(wall, 2), sumo_days_run=memo.simulated - from_store,
+              sumo_days_repeated=memo.reused, sumo_days_from_store=from_store)
     return RunResult(folder, metrics, wall, days=H + T + task.test_eps,
                      replayed_days=H if human_phase_from else 0)

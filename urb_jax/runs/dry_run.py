@@ -17,6 +17,7 @@ from typing import Any
 from urb_jax.algorithms.registry import algorithm
 from urb_jax.core.configio import Loaded, in_section
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.paths import day_store_bytes
 from urb_jax.reporting.urb_names import train_names
 from urb_jax.runs.folder import (
     CONFIG_FILE,
@@ -29,6 +30,7 @@ from urb_jax.runs.request import TrainRequest
 from urb_jax.runs.round_log import check_logger
 from urb_jax.runs.setup import TrainSetup, check_runnable, load_setup
 from urb_jax.runs.urb_configs import run_overrides, train_configs
+from urb_jax.training.hybrid.trainer import budget_plan, budget_text
 
 
 @dataclass(frozen=True)
@@ -44,6 +46,8 @@ class TrainPlan:
 def plan_train(req: TrainRequest) -> TrainPlan:
     """What `run.run_train(req)` would run; raises the error it would stop on."""
     check_logger(req.log)
+    if req.day_store:
+        day_store_bytes()  # the SUMO day store's cap ($URB_JAX_DAY_STORE_GB)
     req = req.resolved()
     setup = load_setup(req)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode)
@@ -96,9 +100,17 @@ def describe(plan: TrainPlan) -> list[str]:
         lines += _config_lines(kind, loaded)
     hyb = plan.setup.hyb
     hyb_set = {o.key for o in in_section(run_overrides(req.overrides), "hybrid")}
+    lines.append(f"budget       {_budget(plan)}")
     lines.append(f"hybrid config {plan.setup.hyb_path}")
     lines += [f"  {k} = {v!r}{'   (--set)' if k in hyb_set else ''}" for k, v in asdict(hyb).items()]
     return lines
+
+
+def _budget(plan: TrainPlan) -> str:
+    """The rounds the run would train (the learner is built, not compiled, to know its iteration)."""
+    req, st = plan.request, plan.setup
+    rounds = budget_plan(st.scn, st.task, st.env, req.alg, st.alg_config, st.hyb, req.mode, req.env_seed)
+    return budget_text(rounds, st.hyb.train_days)
 
 
 def _config_lines(kind: str, loaded: Loaded[Any]) -> list[str]:

@@ -69,6 +69,7 @@ class TrainRequest:
     results_dir: str = "results"
     overwrite: bool = False
     progress: bool = True
+    day_store: bool = True  # SUMO days through the shared day store (sumo_bridge.memo.day_store)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "seeds", _seeds(self.seeds))
@@ -122,6 +123,7 @@ class ResumeRequest:
     overrides: tuple[str, ...] = ()  # must be the recorded ones, if given
     log: str | None = None  # None: the recorded logger
     progress: bool = True
+    day_store: bool = True  # SUMO days through the shared day store (not recorded: days are the same)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "overrides", tuple(self.overrides or ()))
@@ -145,13 +147,14 @@ class BaselineRequest:
     results_dir: str = "results"
     overwrite: bool = False
     progress: bool = True
+    day_store: bool = True  # SUMO days through the shared day store (sumo_bridge.memo.day_store)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "overrides", tuple(self.overrides or ()))
 
 
 # The fields a suite file may give each kind of run: the rest are the suite's own.
-NOT_FROM_SUITE_FILES = frozenset({"exp_id", "results_dir", "progress", "overwrite"})
+NOT_FROM_SUITE_FILES = frozenset({"exp_id", "results_dir", "progress", "overwrite", "day_store"})
 
 
 def request_fields(cls: type[TrainRequest] | type[BaselineRequest]) -> frozenset[str]:

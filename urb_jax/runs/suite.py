@@ -136,10 +136,11 @@ def finished_runs(results_dir: Path) -> list[str]:
 
 
 def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = True,
-              log: Callable[[str], None] = print, recorded: frozenset[str] | set[str] = frozenset()
-              ) -> list[Path]:
+              log: Callable[[str], None] = print, recorded: frozenset[str] | set[str] = frozenset(),
+              day_store: bool = True) -> list[Path]:
     """Every run of the suite, finished ones skipped and stopped ones resumed; the folders finished
-    here. `recorded`: run folder names finished elsewhere (the paper page's ledger), skipped too."""
+    here. `recorded`: run folder names finished elsewhere (the paper page's ledger), skipped too;
+    `day_store`: the runs read and keep SUMO days in the shared day store (False: `--no-day-store`)."""
     results_dir = Path(results_dir)
     folders: list[Path] = []
     before = finished_runs(results_dir)  # other suites' runs too: catalogue entries share networks
@@ -173,17 +174,18 @@ def run_suite(runs: list[SuiteRun], results_dir: str | Path, progress: bool = Tr
         if state == "stopped" and run.kind == "train":
             first = next(n for n in left if run_status(results_dir / n) is not None)
             resume_train(ResumeRequest(first, results_dir=str(results_dir), progress=progress,
-                                       networks_dir=run.kwargs.get("networks_dir")),
+                                       networks_dir=run.kwargs.get("networks_dir"), day_store=day_store),
                          executor=run.options.get("executor"))
         elif state != "done":  # a stopped baseline has no checkpoint: it starts again in its own folder
             part, again = remaining(run, left), state == "stopped"
             if run.kind == "train":
                 run_train(TrainRequest(**part.kwargs, exp_id=part.exp_id, results_dir=str(results_dir),
-                                       progress=progress, overwrite=again), human_phase_candidates=candidates,
+                                       progress=progress, overwrite=again, day_store=day_store),
+                          human_phase_candidates=candidates,
                           **part.options)
             else:
                 run_baseline(BaselineRequest(**part.kwargs, exp_id=part.exp_id, results_dir=str(results_dir),
-                                             progress=progress, overwrite=again),
+                                             progress=progress, overwrite=again, day_store=day_store),
                              human_phase_candidates=candidates, **part.options)
         folders += finished_here(results_dir, run.folder_names())
     return folders

@@ -20,6 +20,7 @@ from urb_jax.core.choices import DEFAULT_NETWORK
 from urb_jax.core.compile_cache import enable_compile_cache
 from urb_jax.core.configio import to_dict
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.paths import day_store_bytes
 from urb_jax.core.phase import enter_phase
 from urb_jax.core.progress import Progress
 from urb_jax.game.config import TaskConfig
@@ -61,7 +62,8 @@ from urb_jax.runs.urb_configs import (
     run_overrides,
     train_override_record,
 )
-from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoPool
+from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoConfig, SumoPool
+from urb_jax.sumo_bridge.memo import LazyExecutor, day_store
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 from urb_jax.training.checkpoints import checkpoint_meta, latest_checkpoint
 from urb_jax.training.human_phase import (
@@ -93,14 +95,19 @@ def make_executor(hyb: HybridConfig, log_dir: Path, kind: str = "pool",
 
 @contextlib.contextmanager
 def _executor(given: DayExecutor | None, hyb: HybridConfig, log_dir: Path, kind: str,
-              ray_address: str | None) -> Iterator[DayExecutor]:
-    """The caller's executor, or a new one (`make_executor`) closed on exit."""
+              ray_address: str | None, stored: bool) -> Iterator[DayExecutor]:
+    """The caller's executor, or a new one (`make_executor`) closed on exit; behind the SUMO day
+    store (`day_store`) unless `stored` is False or the store is off."""
     if given is not None:
-        yield given
+        yield day_store(given, stored)
         return
-    executor = make_executor(hyb, log_dir, kind, ray_address)
+    # behind the store, SUMO's processes start with the first day not in it (none: never)
+    def make() -> DayExecutor:
+        return make_executor(hyb, log_dir, kind, ray_address)
+
+    executor = LazyExecutor(make, SumoConfig()) if stored and day_store_bytes() else make()
     try:
-        yield executor
+        yield day_store(executor, stored)
     finally:
         executor.close()
 
@@ -115,6 +122,8 @@ def run_train(req: TrainRequest, *, executor: DayExecutor | None = None, stop_af
     runs); `stop_after_round`: stop there as a kill would (tests)."""
     enable_compile_cache()
     check_logger(req.log)
+    if req.day_store:
+        day_store_bytes()  # a bad $URB_JAX_DAY_STORE_GB stops the run before it starts
     req = req.resolved()
     t0 = time.perf_counter()
     setup = load_setup(req)
@@ -139,12 +148,13 @@ def run_train(req: TrainRequest, *, executor: DayExecutor | None = None, stop_af
     first = folders[req.seeds[0]]
     log_run_to(first)  # beside the SUMO logs (the executor's log_dir)
     with stops_cleanly(list(folders.values())), \
-            _executor(executor, setup.hyb, first, req.executor, req.ray_address) as ex:
+            _executor(executor, setup.hyb, first, req.executor, req.ray_address, req.day_store) as ex:
         if human is None:
             days = journal(ex, first)
+            before = days.reused
             human = _simulate_human_phase(setup, days, req.env_seed, req.mode, req.progress)
-            for s in req.seeds:  # repeated days of converged humans, each run once
-                configs[s]["human_phase_days_read_back"] = days.reused
+            for s in req.seeds:  # repeated days of converged humans, and days in the day store
+                configs[s]["human_phase_days_read_back"] = days.reused - before
         for folder in folders.values():
             save_human_phase(folder, human)
         t_human = time.perf_counter() - t0
@@ -211,7 +221,7 @@ def _resume_group(group: list[str], resume: ResumeRequest, executor: DayExecutor
     recorded = configs[0]["train_args"]
     check_resume_overrides(folders[0], recorded.get("overrides") or [], resume.overrides)
     check_logger(resume.log or recorded.get("log"))
-    now = {"results_dir": resume.results_dir, "progress": resume.progress,
+    now = {"results_dir": resume.results_dir, "progress": resume.progress, "day_store": resume.day_store,
            "networks_dir": networks_dir_of(configs[0], resume.networks_dir),
            "human_phase_from": configs[0].get("human_phase_from"),
            **{k: v for k, v in (("log", resume.log), ("executor", resume.executor),
@@ -219,7 +229,7 @@ def _resume_group(group: list[str], resume: ResumeRequest, executor: DayExecutor
     req, setup = recorded_setup(configs, **now)
     check_run_network(folders[0] / CONFIG_FILE, configs[0], setup.scn.n_agents, setup.scn.net_file)
     with stops_cleanly(folders), \
-            _executor(executor, setup.hyb, folders[0], req.executor, req.ray_address) as ex:
+            _executor(executor, setup.hyb, folders[0], req.executor, req.ray_address, resume.day_store) as ex:
         elapsed = _wall_clock(_wall_before(folders[0], configs))
         human = None
         if latest_checkpoint(folders[0]) is None:  # stopped before round 0's checkpoint: start over

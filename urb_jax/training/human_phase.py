@@ -15,9 +15,10 @@ simulation); later days go to the wrapped executor.
   calibration days from the file.
 
 A run's own human phase is journaled (`journal`: the one day cache, on disk in the run's first
-folder), so a run stopped before its first checkpoint resumes by simulating the phase
-again with every day already done read back (SUMO days are deterministic: the same records). The
-journal goes when every folder of the run is done (`urb_jax.runs.train.drop_journal`).
+folder; behind the SUMO day store, the store itself), so a run stopped before its first checkpoint
+resumes by simulating the phase again with every day already done read back (SUMO days are
+deterministic: the same records). The journal goes when every folder of the run is done
+(`urb_jax.runs.train.drop_journal`).
 """
 
 from __future__ import annotations
@@ -153,7 +154,10 @@ def _human_model(scn: Scenario, cfg: HybridConfig, choices: list[np.ndarray], re
 def journal(executor: DayExecutor, folder: Path) -> MemoExecutor:
     """`executor` behind the one day cache, stored in folder/human_days.journal/: a stopped run
     starting again reads back the days it already ran, and a day that repeats one already run
-    (converged deterministic humans: saint_arnoult, 66 of 208 days) is that SUMO day, read back."""
+    (converged deterministic humans: saint_arnoult, 66 of 208 days) is that SUMO day, read back.
+    An executor already behind the day store (`sumo_bridge.memo.day_store`) is its own journal."""
+    if isinstance(executor, MemoExecutor) and executor.stored:
+        return executor
     return MemoExecutor(executor, store_dir=folder / JOURNAL_DIR)
 
 

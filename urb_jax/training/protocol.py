@@ -128,25 +128,27 @@ class _CavDays:
         humans = game.human_init
         assert humans is not None  # run_experiment builds the game with the trained humans
         # Before the first CAV day, as env.reset: yesterday's CAV routes AON, times free-flow.
-        k_act = _protocol_keys(root, days[0])[0]
-        state = EnvState(humans, act_jit(k_act, humans, hp, jnp.asarray(scn.fft, dtype=jnp.float32)),
+        keys = _protocol_keys(root, days[0])
+        state = EnvState(humans, act_jit(keys[0], humans, hp, jnp.asarray(scn.fft, dtype=jnp.float32)),
                          jnp.asarray(aon_routes(scn.fft, scn.route_valid)[game.cav_index]),
                          jnp.asarray(scn.fft_full.min(axis=1)), jnp.asarray(days[0] - 1, jnp.int32))
         for day in days:
             phase = PHASE_TRAIN if day <= last_train_day else PHASE_TEST
-            pstate, state = self._day(pstate, state, day, phase, root)
+            tomorrow = _protocol_keys(root, day + 1)
+            pstate, state = self._day(pstate, state, day, phase, keys, tomorrow[0])
+            keys = tomorrow
         return pstate, state.humans
 
-    def _day(self, pstate: Any, state: EnvState, day: int, phase: str, root: jax.Array
-             ) -> tuple[Any, EnvState]:
+    def _day(self, pstate: Any, state: EnvState, day: int, phase: str, keys_today: jax.Array,
+             k_act_tomorrow: jax.Array) -> tuple[Any, EnvState]:
         game = self.game
-        _, k_learn, k_cav, k_plearn = _protocol_keys(root, day)
+        _, k_learn, k_cav, k_plearn = keys_today
         obs, cav_actions = _cav_choices(game, self.policy, pstate, k_cav, state)
         choices = np.asarray(game.joint_actions(state, jnp.asarray(cav_actions)))
         res = one_day(self.executor, game.scenario, choices, self.env_seed, game.is_cav)
         self.bar.update(1, phase)
         times = np.asarray(res.travel_time, dtype=np.float64)
-        keys = DayKeys(k_learn, _protocol_keys(root, day + 1)[0])
+        keys = DayKeys(k_learn, k_act_tomorrow)
         _, state, cav_rewards_c, _, _ = game.step_with_times(keys, state, jnp.asarray(cav_actions),
                                                              jnp.asarray(times, jnp.float32))
         rewards_c = np.asarray(cav_rewards_c)  # [C]

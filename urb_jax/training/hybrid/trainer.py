@@ -155,17 +155,10 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     `humans`: the human phase's; None for a resume (then a placeholder the checkpoint replaces)."""
     if mode not in MODES:
         raise ValueError(f"mode {mode!r}: use one of {MODES}")
-    n = scn.n_agents
-    hp = task.human_params()
-    is_cav = draw_cavs(env_seed, n, task.ratio_machines, agent_id=scn.agent_id)
-    static = build_static(scn)
-    env_kwargs = routing_env_kwargs(task, env_cfg)
+    is_cav, static, env_kwargs, env = _group_env(scn, task, env_cfg, env_seed, humans)
     p0 = uncalibrated(static)
-    if humans is None:  # shapes only: the checkpoint overwrites it
-        humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid), hp)
-    env = surrogate_env(scn, is_cav, static, humans, p0, env_kwargs)
     given = alg_config  # the hint and the probe's learner start from it: fitting changes it
-    plan = plan_rounds(cfg, mode, learner_for(alg, given, env, cfg, 1, mode)[0].days_per_iter)
+    plan = _plan(alg, given, env, cfg, mode)
     learner, alg_config = learner_for(alg, given, env, cfg, plan.n_rounds, mode, plan.iters)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
     clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg, given))
@@ -184,6 +177,41 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
                  np.flatnonzero(is_cav), static, p0,
                  plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock, probe,
                  memory_note, seed_map)
+
+
+def _plan(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, mode: str) -> RoundPlan:
+    """The rounds the budget buys, from the learner's days per iteration on `env`."""
+    return plan_rounds(cfg, mode, learner_for(alg, alg_config, env, cfg, 1, mode)[0].days_per_iter)
+
+
+def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: int, humans: HumanState | None
+               ) -> tuple[np.ndarray, Static, dict[str, Any], RoutingEnv]:
+    """(is_cav [N], static, env kwargs, the surrogate env, uncalibrated). `humans` None: a placeholder
+    of the right shapes (a resume's checkpoint, or a dry run, replaces it)."""
+    is_cav = draw_cavs(env_seed, scn.n_agents, task.ratio_machines, agent_id=scn.agent_id)
+    static = build_static(scn)
+    env_kwargs = routing_env_kwargs(task, env_cfg)
+    if humans is None:
+        humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid),
+                             task.human_params())
+    env = surrogate_env(scn, is_cav, static, humans, uncalibrated(static), env_kwargs)
+    return is_cav, static, env_kwargs, env
+
+
+def budget_plan(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, alg_config: AlgoConfig,
+                cfg: HybridConfig, mode: str, env_seed: int) -> RoundPlan:
+    """The rounds `setup_group` would plan, without a human phase (for a dry run)."""
+    return _plan(alg, alg_config, _group_env(scn, task, env_cfg, env_seed, None)[3], cfg, mode)
+
+
+def budget_text(plan: RoundPlan, train_days: int) -> str:
+    """'10 rounds of 608 surrogate + 16 SUMO days = 6,240 training days (6,000 asked; rounds are
+    whole, so the budget is rounded up)', or '... = 6,000 training days' when it divides."""
+    total = plan.n_rounds * (plan.surrogate_days + plan.sumo_days)
+    text = (f"{plan.n_rounds} round(s) of {plan.surrogate_days:,} surrogate + {plan.sumo_days:,} SUMO days "
+            f"= {total:,} training days")
+    return text if total == train_days else \
+        f"{text} ({train_days:,} asked; rounds are whole, so the budget is rounded up)"
 
 
 def _slow_hint(alg: str, alg_config: AlgoConfig) -> str:
@@ -506,6 +534,8 @@ def train_group(
     g.clock.note = bar.note
     found = None if human is not None else latest_checkpoint(folders[0])  # None: resume() says why
     first = 0 if found is None else found[0]
+    if first < plan.n_rounds:
+        bar.note(f"budget: {budget_text(plan, cfg.train_days)}")
     if g.probe is not None and first < plan.n_rounds:  # a big learner: its memory and cost up front,
         bar.note(g.memory_note)  # the probe run before the group's state exists (hybrid/memory.py)
         g.clock.start_round(first)
