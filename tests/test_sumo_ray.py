@@ -246,7 +246,9 @@ def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypat
         raise StopError
 
     scn = types.SimpleNamespace(n_agents=3, net_file="net.xml")  # the run's own network, found again
-    monkeypatch.setattr(run, "load_setup", lambda args: run.TrainSetup(scn, *(None,) * 7))
+    from urb_jax.runs import setup as run_setup
+
+    monkeypatch.setattr(run_setup, "load_setup", lambda args: run.TrainSetup(scn, *(None,) * 7))
     monkeypatch.setattr(run, "make_executor", fake_executor)
     with pytest.raises(StopError):
         run.resume_train(ResumeRequest("a", results_dir=str(tmp_path), progress=False))

@@ -78,12 +78,18 @@ def test_day_cache_round_trip(grid_days, tmp_path):
     assert back.seed == days[0].seed and back.teleports == days[0].teleports
 
 
-def test_cached_days_are_reused(grid_days):
-    scn, *_ , days = grid_days
-    choices, _ = make_choices(scn, grid_days[1], grid_days[2], 10, seed=5)
-    again = sumo_days(scn, choices[:2], 42, workers=1)  # served from the cache written above
-    for a, b in zip(again, days[:2], strict=True):
+def test_cached_days_are_reused(grid_days, monkeypatch, tmp_path):
+    """With the SUMO day store on, asking again for the same days reads them back (the same
+    record, wall time included, not a re-run), and they are the days SUMO gives without it."""
+    monkeypatch.setenv("URB_JAX_DAY_STORE_GB", "1")
+    monkeypatch.setenv("URB_JAX_CACHE", str(tmp_path))
+    scn, static, p0, *_, days = grid_days
+    choices, _ = make_choices(scn, static, p0, 10, seed=5)
+    first = sumo_days(scn, choices[:2], 42, workers=1)
+    again = sumo_days(scn, choices[:2], 42, workers=1)  # served from the store written above
+    for a, b, off in zip(again, first, days[:2], strict=True):
         np.testing.assert_array_equal(a.travel_time, b.travel_time)
+        np.testing.assert_array_equal(a.travel_time, off.travel_time)
         assert a.wall_time == b.wall_time  # identical record, not a re-run
 
 
