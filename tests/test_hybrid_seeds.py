@@ -195,3 +195,22 @@ def test_human_phase_reuse_refuses_a_different_phase(confs, tmp_path):
     with pytest.raises(UrbJaxError, match="not found"):
         _train(confs, tmp_path, "bad2", FakeExecutor(), human_phase_from="nowhere")
     assert not (tmp_path / "bad").exists() and not (tmp_path / "bad2").exists()  # refused before any folder
+
+
+@pytest.mark.slow
+def test_a_resume_refuses_a_config_file_edited_since_the_start(confs, tmp_path):
+    """The hybrid file a run started with, edited before its resume: the resume names the value
+    recorded and the value read now, and trains nothing."""
+    (killed,) = _train(confs, tmp_path, "edit", FakeExecutor(), seeds=[0], stop_after_round=1)
+    hyb = Path(confs["hybrid_conf"])
+    original = hyb.read_text()
+    try:
+        cfg = json.loads(original)
+        hyb.write_text(json.dumps(cfg | {"refit_steps": cfg.get("refit_steps", 150) + 1}))
+        ex = FakeExecutor()
+        req = ResumeRequest(killed.folder.name, results_dir=str(tmp_path), progress=False)
+        with pytest.raises(UrbJaxError, match=r"configs changed since it started \('hybrid_refit_steps' was"):
+            resume_train(req, executor=ex)
+        assert ex.batches == []  # refused before any SUMO day
+    finally:
+        hyb.write_text(original)

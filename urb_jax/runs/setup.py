@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -186,6 +187,23 @@ def experiment_config(scn: Scenario, task: TaskConfig, task_path: Path, env: Env
         "versions": versions(), "machine": machine(), "urb_jax_version": __version__, "command": sys.argv,
         "status": "running", "human_phase_from": human_phase_from, **_dropped(scn, drop_unroutable),
     }
+
+
+def check_recorded_configs(config_file: Path, config: dict[str, Any], setup: TrainSetup,
+                           ignore: Sequence[str] = ()) -> None:
+    """A resume re-reads the run's task, env and hybrid files: each value must be the one the run
+    recorded when it started (a file edited since would change the run half-way). `ignore`: keys the
+    record gives a value of its own."""
+    now = {**to_dict(setup.env), **to_dict(setup.task),
+           **{f"hybrid_{k}": v for k, v in to_dict(setup.hyb).items()}}
+    changed = [k for k, v in now.items()
+               if k in config and k not in ignore and json.loads(json.dumps(v)) != config[k]]
+    if changed:
+        files = f"{setup.task_path}, {setup.env_path}, {setup.hyb_path}"
+        diffs = "; ".join(f"'{k}' was {config[k]!r}, now {json.loads(json.dumps(now[k]))!r}" for k in changed)
+        raise UrbJaxError(f"{config_file}: the run's configs changed since it started ({diffs}; read from "
+                          f"{files} and the recorded --set items). Fix: restore the files, or start a new "
+                          "run with another --id.")
 
 
 def _dropped(scn: Scenario, drop_unroutable: bool) -> dict[str, Any]:

@@ -48,6 +48,7 @@ from urb_jax.runs.run_log import log_run_to, with_run_log
 from urb_jax.runs.setup import (
     RunResult,
     TrainSetup,
+    check_recorded_configs,
     check_runnable,
     experiment_config,
     first_reusable,
@@ -228,6 +229,7 @@ def _resume_group(group: list[str], resume: ResumeRequest, executor: DayExecutor
                                 ("ray_address", resume.ray_address)) if v is not None}}
     req, setup = recorded_setup(configs, **now)
     check_run_network(folders[0] / CONFIG_FILE, configs[0], setup.scn.n_agents, setup.scn.net_file)
+    check_recorded_configs(folders[0] / CONFIG_FILE, configs[0], setup, ignore=RECORD_OWN_KEYS)
     with stops_cleanly(folders), \
             _executor(executor, setup.hyb, folders[0], req.executor, req.ray_address, resume.day_store) as ex:
         elapsed = _wall_clock(_wall_before(folders[0], configs))
@@ -277,6 +279,10 @@ def _human_phase_again(setup: TrainSetup, req: TrainRequest, config: dict[str, A
                                  setup.hyb, req.env_seed, calibrate=req.mode != "sumo")
     holder = results_dir / config.get(JOURNAL_KEY, config["group"][0])
     return _simulate_human_phase(setup, journal(executor, holder), req.env_seed, req.mode, req.progress)
+
+
+# exp_config.json keys of a config's field that a train run's record sets itself (see _train_config)
+RECORD_OWN_KEYS = ("training_eps",)
 
 
 def _train_config(setup: TrainSetup, req: TrainRequest) -> dict[str, Any]:
