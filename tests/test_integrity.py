@@ -15,6 +15,7 @@ from support.digests import result_digests
 from support.fakeday import FakeExecutor
 from support.tiny_runs import train_iql
 
+from urb_jax.core.atomic import file_sha256
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.phase import enter_phase, is_out_of_memory
 from urb_jax.reporting.records import (
@@ -26,7 +27,6 @@ from urb_jax.reporting.records import (
     adopt_undigested_parts,
     damaged_parts,
     digest_path,
-    file_sha256,
     write_run_metrics,
 )
 from urb_jax.runs.request import ResumeRequest

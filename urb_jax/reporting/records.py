@@ -14,7 +14,6 @@ are named and refused, never turned into metrics.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -28,7 +27,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from urb_jax.core.atomic import atomic_path, write_bytes
+from urb_jax.core.atomic import atomic_path, file_sha256, write_bytes
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.paths import absolute_dir
 from urb_jax.reporting.comparable import comparable_metrics, is_hybrid
@@ -57,14 +56,6 @@ DIGEST_SUFFIX = ".sha256"  # beside a part (part-NNNNN.sha256) and the merged fi
 
 class DamagedRecordsError(UrbJaxError):
     """Record files that do not match their digests (or are missing)."""
-
-
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        while chunk := f.read(1 << 20):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def part_path(parts: Path, i: int) -> Path:

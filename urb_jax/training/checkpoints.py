@@ -13,7 +13,6 @@ a full disk while writing) is ignored by a resume and replaced.
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import logging
 import shutil
@@ -27,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from urb_jax.core.atomic import write_json, write_npz
+from urb_jax.core.atomic import file_sha256, write_json, write_npz
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.surrogate.calibrate import SumoSample
 
@@ -132,16 +131,8 @@ def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: Ro
 
 def file_digests(d: Path) -> dict[str, str]:
     """sha256 of every file under checkpoint `d` but meta.json, by path relative to `d`."""
-    return {p.relative_to(d).as_posix(): _sha256(p) for p in sorted(d.rglob("*"))
+    return {p.relative_to(d).as_posix(): file_sha256(p) for p in sorted(d.rglob("*"))
             if p.is_file() and p.name != "meta.json"}
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        while chunk := f.read(1 << 20):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def damaged_files(ckpt: Path, meta: dict[str, Any]) -> list[str]:
