@@ -194,13 +194,13 @@ def check_recorded_configs(config_file: Path, config: dict[str, Any], setup: Tra
     """A resume re-reads the run's task, env and hybrid files: each value must be the one the run
     recorded when it started (a file edited since would change the run half-way). `ignore`: keys the
     record gives a value of its own."""
-    now = {**to_dict(setup.env), **to_dict(setup.task),
-           **{f"hybrid_{k}": v for k, v in to_dict(setup.hyb).items()}}
-    changed = [k for k, v in now.items()
-               if k in config and k not in ignore and json.loads(json.dumps(v)) != config[k]]
+    # as JSON would record them (tuples as lists)
+    now = json.loads(json.dumps({**to_dict(setup.env), **to_dict(setup.task),
+                                 **{f"hybrid_{k}": v for k, v in to_dict(setup.hyb).items()}}))
+    changed = [k for k, v in now.items() if k in config and k not in ignore and v != config[k]]
     if changed:
         files = f"{setup.task_path}, {setup.env_path}, {setup.hyb_path}"
-        diffs = "; ".join(f"'{k}' was {config[k]!r}, now {json.loads(json.dumps(now[k]))!r}" for k in changed)
+        diffs = "; ".join(f"'{k}' was {config[k]!r}, now {now[k]!r}" for k in changed)
         raise UrbJaxError(f"{config_file}: the run's configs changed since it started ({diffs}; read from "
                           f"{files} and the recorded --set items). Fix: restore the files, or start a new "
                           "run with another --id.")
