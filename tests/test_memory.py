@@ -65,3 +65,41 @@ def test_a_run_that_would_not_fit_stops_before_training(tmp_path, monkeypatch):
     folders = sorted((tmp_path / "r").glob("iql_*"))
     assert folders and all(not (f / "checkpoints").exists() for f in folders)  # no training round ran
     assert (folders[0] / "human_phase.npz").is_file()  # what the error says --human-phase-from reuses
+
+
+def _hidden_layers(x, w):  # [R, 256] @ [256, 256] twice: XLA must keep both activations for the gradient
+    h = jax.numpy.tanh(x @ w)
+    return jax.numpy.tanh(h @ w).sum()
+
+
+def test_a_program_whose_temporaries_would_not_fit_is_refused_with_the_fix():
+    """The learner's state can be small and a round's transient batch huge (IPPO on URB's frames):
+    XLA's own count of the compiled program's temporaries is compared with the memory available."""
+    rows = 20_000
+    program = jax.jit(jax.grad(_hidden_layers, argnums=1)).lower(
+        jax.ShapeDtypeStruct((rows, 256), np.float32), jax.ShapeDtypeStruct((256, 256), np.float32)).compile()
+    need = memory.program_bytes(program)
+    assert need is not None and need >= 2 * rows * 256 * 4  # at least the two [R, 256] activations
+    memory.check_program_fits(program, "x", available=need)  # exactly enough: runs
+    with pytest.raises(UrbJaxError) as err:
+        memory.check_program_fits(program, "a round's surrogate iterations", available=need // 2)
+    text = str(err.value)
+    assert text.startswith("a round's surrogate iterations: its compiled program needs about")
+    assert "--set hybrid.seed_axis=map" in text and "max_vmapped_seeds" in text
+
+
+def test_a_round_too_big_for_memory_stops_before_it_runs(monkeypatch):
+    """run_chunks checks each chunk's program when it compiles it, before the first iteration."""
+    from urb_jax.training.hybrid.clock import IterationClock, run_chunks
+
+    calls = []
+
+    def step(c, keys):
+        calls.append(1)
+        return c + 1.0, {"m": keys[..., 0]}
+
+    monkeypatch.setattr(memory, "available_bytes", lambda: 0)
+    keys = jax.numpy.zeros((1, 4, 2), jax.numpy.uint32)
+    with pytest.raises(UrbJaxError, match="its compiled program needs"):
+        run_chunks(jax.jit(lambda c, k: jax.vmap(step)(c, k)), (jax.numpy.zeros(1),), keys,
+                   IterationClock(4, 1, note=lambda s: None), {})

@@ -20,7 +20,7 @@ import jax
 import numpy as np
 
 from urb_jax.algorithms.learner import Learner
-from urb_jax.training.hybrid.memory import tree_size
+from urb_jax.training.hybrid.memory import check_program_fits, tree_size
 
 LINE_EVERY_S = 300.0
 SLOW_S = 3600.0  # a surrogate training estimated longer than this gets the --alg-conf hybrid hint
@@ -142,5 +142,7 @@ def _compiled(fn: Callable[..., Any], args: tuple[Any, ...], programs: dict[Any,
     sig = (id(fn), jax.tree_util.tree_structure(args),
            tuple((x.shape, x.dtype, getattr(x, "weak_type", False)) for x in jax.tree_util.tree_leaves(args)))
     if sig not in programs:
-        programs[sig] = cast(Any, fn).lower(*args).compile()  # fn: a jax.jit function (has .lower)
+        program = cast(Any, fn).lower(*args).compile()  # fn: a jax.jit function (has .lower)
+        check_program_fits(program, "a round's surrogate iterations")
+        programs[sig] = program
     return programs[sig]

@@ -92,3 +92,35 @@ def check_fits(state: Any, seeds: int, what: str, available: int | None = None) 
                       f"has {available / GB:.1f} GB available. Fix: {fix}a smaller algorithm config "
                       f"(e.g. --alg-conf hybrid), or a machine with more memory; the human phase is kept "
                       f"(--human-phase-from reuses it).")
+
+
+def program_bytes(compiled: Any) -> int | None:
+    """Bytes a compiled program allocates when it runs, over its arguments: its temporaries and the
+    outputs not written over donated inputs (XLA's `memory_analysis`); None where the backend does
+    not say."""
+    try:
+        stats = compiled.memory_analysis()
+    except (AttributeError, NotImplementedError, RuntimeError):
+        return None
+    if stats is None:
+        return None
+    new = int(stats.temp_size_in_bytes) + int(stats.output_size_in_bytes) - int(stats.alias_size_in_bytes)
+    return max(0, new)
+
+
+def check_program_fits(compiled: Any, what: str, available: int | None = None) -> None:
+    """Refuse (UrbJaxError, exit 2) to run a compiled program that would allocate more than the
+    memory available now. The state check (`check_fits`) sees only the learner's state; a learner's
+    transient batch can be far bigger (IPPO on URB's frames: every CAV's row in every CAV's frame,
+    tens of GB for five vmapped seeds on St. Arnoult), and XLA knows its size once it has compiled."""
+    need = program_bytes(compiled)
+    available = available_bytes() if available is None else available
+    if need is None or need <= available:
+        return
+    raise UrbJaxError(f"{what}: its compiled program needs about {need / GB:.1f} GB of temporaries and "
+                      f"{memory_place()} has {available / GB:.1f} GB available. Fix: train the seeds one "
+                      "after another inside the program (--set hybrid.seed_axis=map: the temporaries of "
+                      "one seed), fewer seeds at a time (--set hybrid.max_vmapped_seeds=K) or fewer "
+                      "environments (--set hybrid.num_envs=B); the human phase is kept (--resume, or "
+                      "--human-phase-from).")
+
