@@ -487,3 +487,35 @@ def test_a_cost_cell_says_why_it_is_not_judged():
     assert on_hybrid.kind == on_sumo.kind == NOT_COMPARABLE
     assert on_hybrid.detail == "not comparable: hybrid (40 SUMO of 6000 training days)"
     assert on_sumo.detail == WHY_COST
+
+
+def _seed_rows(alg: str, values: list[float], prefix: str) -> list[dict]:
+    return [{"network": "saint_arnoult", "algorithm": alg, "alg": alg, "exp_id": f"{prefix}_{alg}_s{i}",
+             "t_CAV_duration": v, "t_pre_duration": 3.1585} for i, v in enumerate(values)]
+
+
+def test_the_implementation_share_is_split_into_urbs_wiring_and_what_is_left():
+    """scenario1_sumo's page section: ours on URB's wiring against ours (the wiring's share) and the
+    paper against ours on URB's wiring (what is left), each a Welch difference checked with scipy."""
+    from scipy import stats
+
+    from urb_jax.reporting.paper import wiring_markdown
+
+    paper = load_paper_numbers()["entries"]["scenario1_sumo"]
+    assert paper["wiring"] == "urb_wiring"
+    wiring = [3.13, 3.79, 3.77, 3.59, 3.78]  # IQL on URB's frames and raw seconds
+    ours = [3.015, 3.013, 3.018, 3.028, 3.014]
+    lines = wiring_markdown(paper, pd.DataFrame(_seed_rows("iql", ours, "s1")),
+                            pd.DataFrame(_seed_rows("iql", wiring, "wiring")))
+    iql = next(line for line in lines if line.startswith("| **IQL**"))
+    cells = [c.strip() for c in iql.strip("|").split("|")]
+    w = stats.ttest_ind(wiring, ours, equal_var=False)
+    share = sum(wiring) / 5 - sum(ours) / 5
+    assert cells[5].startswith(f"{share:+.4f}") and f"p = {w.pvalue:.3f}" in cells[5]
+    assert "tie" not in cells[5]  # URB's wiring moves IQL by +0.6 min, far outside the seeds' spread
+    row = paper["tables"][0]["rows"]["iql"]
+    m = row["values"]["t_CAV"]
+    left = m - sum(wiring) / 5
+    assert cells[6].startswith(f"{left:+.4f}") and cells[6].endswith("**tie**")  # inside both spreads
+    assert cells[7] == "1/5 [1%, 72%]"  # 3.13 beats its t_pre 3.1585; Clopper-Pearson [0.5%, 71.6%]
+    assert any(line.startswith("| **QMIX**") and line.count("not run yet") == 5 for line in lines)

@@ -438,6 +438,9 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any], all_runs: dict[str,
             out += _table_markdown(table, ours, [j for j in judged if j.network == table["network"]], paper)
         if paper.get("decomposes"):
             out += decomposition_markdown(res, paper, all_runs.get(paper["decomposes"], pd.DataFrame()))
+        if paper.get("wiring") and paper.get("decomposes"):
+            out += wiring_markdown(paper, all_runs.get(paper["decomposes"], pd.DataFrame()),
+                                   all_runs.get(paper["wiring"], pd.DataFrame()))
     text = [c for c in paper.get("claims", [])]
     if text:
         out += ["Claims of the paper not judged here:", ""]
@@ -476,12 +479,52 @@ def decomposition_markdown(res: EntryResults, paper: dict[str, Any], hybrid_runs
     return [*out, ""]
 
 
-def _decomposition_cells(row: dict[str, Any], sumo: pd.DataFrame | None, hybrid: pd.DataFrame | None
-                         ) -> list[str]:
+WIRING = """The implementation's share, split, per algorithm: ours hybrid trained on URB's TorchRL frames and
+raw observations (`{wiring}`) against ours hybrid (`{hybrid}`), both mean ± sample sd [95% t-interval]
+(seeds). **URB's wiring** = ours on URB's wiring − ours (what the wiring changes; both runs hybrid, so
+the surrogate's share does not enter), **left** = the paper − ours on URB's wiring (what URB's wiring
+does not explain; "tie" where the interval covers 0)."""
+
+
+def wiring_markdown(paper: dict[str, Any], hybrid_runs: pd.DataFrame, wiring_runs: pd.DataFrame) -> list[str]:
+    """The implementation's share of the gap split into URB's TorchRL wiring (our learners on URB's
+    frames and raw observations) and what is left, per algorithm of the paper's tables."""
+    out = ["### The implementation's share, split: URB's wiring and the rest", "",
+           WIRING.format(wiring=paper["wiring"], hybrid=paper["decomposes"]), ""]
+    head = ["algorithm", "network", "paper", "ours, URB's wiring", "ours", "URB's wiring", "left",
+            "WR URB's wiring"]
+    out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for table in paper["tables"]:
+        net = table["network"]
+        wiring, hybrid = our_seeds(wiring_runs, net), our_seeds(hybrid_runs, net)
+        for alg, row in table["rows"].items():
+            if alg in paper.get("rows_from", {}) or "t_CAV" not in row["values"]:
+                continue
+            out.append("| " + " | ".join([f"**{NAMES.get(alg, alg)}**", net,
+                                          *_wiring_cells(row, wiring.get(alg), hybrid.get(alg))]) + " |")
+    return [*out, ""]
+
+
+def _wiring_cells(row: dict[str, Any], wiring: pd.DataFrame | None, hybrid: pd.DataFrame | None) -> list[str]:
+    paper, cells = _paper_sample(row)
+    wiring_s, hybrid_s = _t_cav(wiring), _t_cav(hybrid)
+    cells += [_sample_cell(s) for s in (wiring_s, hybrid_s)]
+    cells.append(_share(V.welch(wiring_s, hybrid_s)) if wiring_s and hybrid_s else "not run yet")
+    cells.append(_share(V.welch(paper, wiring_s)) if wiring_s else "not run yet")
+    return [*cells, _wins(wiring)]
+
+
+def _paper_sample(row: dict[str, Any]) -> tuple[V.Sample, list[str]]:
+    """The paper's t_CAV as a sample (its sd and 5 runs where printed) and its cell."""
     mean, sd = row["values"]["t_CAV"], row.get("sd", {}).get("t_CAV")
     paper = V.Sample(mean, sd or 0.0, 5 if sd is not None else 1, rounding=0.005)  # printed to 2 decimals
+    return paper, [f"{_paper_num(mean)} ({'sd not printed' if sd is None else f'{sd:g}'})"]
+
+
+def _decomposition_cells(row: dict[str, Any], sumo: pd.DataFrame | None, hybrid: pd.DataFrame | None
+                         ) -> list[str]:
+    paper, cells = _paper_sample(row)
     sumo_s, hybrid_s = _t_cav(sumo), _t_cav(hybrid)
-    cells = [f"{_paper_num(mean)} ({'sd not printed' if sd is None else f'{sd:g}'})"]
     cells += [_sample_cell(s) for s in (sumo_s, hybrid_s)]
     cells.append(_share(V.welch(paper, sumo_s)) if sumo_s else "not run yet")
     cells.append(_share(V.welch(sumo_s, hybrid_s)) if sumo_s and hybrid_s else "not run yet")
