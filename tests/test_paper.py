@@ -244,12 +244,24 @@ def test_the_per_seed_values_a_ledger_row_lacks_are_not_judged(scenario1_partly_
     assert "**not comparable** (per-seed values not recorded)" in _claim(text, "IPPO", "t_CAV > t_pre")
 
 
-def test_the_sensitivity_entries_are_not_comparable_and_say_why():
-    """The paper's sensitivity rows are IQL and MAPPO; the catalogue entry runs IQL* and IPPO*."""
-    text = paper_markdown([EntryResults("sensitivity_demand_half", "half", pd.DataFrame(), 3, 0, 5)],
-                          load_paper_numbers(), "")
-    line = _claim(text, "IQL", "t_CAV > t_pre")
-    assert "**not comparable** (the paper's rows are IQL and MAPPO" in line and "IQL* and IPPO*" in line
+@pytest.mark.parametrize("variant", ["demand_half", "demand_double", "global_obs", "original"])
+def test_the_sensitivity_entries_run_the_papers_iql_and_mappo_for_exactly_its_1200_days(variant):
+    """tab:sensitivity_kpis: IQL and MAPPO as in the main experiments, 1,200 training days; the
+    suites' rounds (one iteration of URB's 20 days in 14 envs, plus 20 SUMO days) add up to 1,200."""
+    from urb_jax.core.configio import in_section
+    from urb_jax.runs.urb_configs import run_overrides
+    from urb_jax.training.hybrid.plan import load_hybrid_config, plan_rounds
+
+    runs = [r for r in load_suite(SUITES / f"sensitivity_{variant}.json").runs if r.kind == "train"]
+    assert sorted(r.kwargs["alg"] for r in runs) == ["iql", "mappo"]
+    for run in runs:
+        assert run.kwargs["alg_conf"] == "config1" and run.kwargs["train_days"] == 1200
+        given = [*run.kwargs["overrides"], "hybrid.train_days=1200"]
+        cfg, _ = load_hybrid_config("default", in_section(run_overrides(given), "hybrid"))
+        plan = plan_rounds(cfg, "hybrid", days_per_iter=20)  # URB's agent_frames_per_batch, config1
+        assert plan.n_rounds * (plan.surrogate_days + plan.sumo_days) == 1200, run.exp_id
+        cooperative = run.kwargs["task_conf"] == "config2" or "task.av_behavior=cooperative" in given
+        assert cooperative == (run.kwargs["alg"] == "mappo"), run.exp_id  # scenario1's tasks
 
 
 def test_suite_paper_writes_the_page_from_a_results_folder(tmp_path, scenario1_partly_run, monkeypatch):
@@ -519,3 +531,31 @@ def test_the_implementation_share_is_split_into_urbs_wiring_and_what_is_left():
     assert cells[6].startswith(f"{left:+.4f}") and cells[6].endswith("**tie**")  # inside both spreads
     assert cells[7] == "1/5 [1%, 72%]"  # 3.13 beats its t_pre 3.1585; Clopper-Pearson [0.5%, 71.6%]
     assert any(line.startswith("| **QMIX**") and line.count("not run yet") == 5 for line in lines)
+
+
+def test_the_sensitivity_variants_take_their_original_rows_from_the_original_entry():
+    """tab:sensitivity_kpis compares each variant with its 'Original' rows: ours are the
+    sensitivity_original entry's IQL and MAPPO runs (rows_from 'entry:row')."""
+    from urb_jax.reporting.paper import _entry_seeds
+
+    data = load_paper_numbers()
+    paper = data["entries"]["sensitivity_demand_half"]
+    assert paper["rows_from"]["iql_original"] == "sensitivity_original:iql"
+    original = pd.DataFrame(_seed_rows("iql", [3.40, 3.42], "original")
+                            + _seed_rows("mappo", [3.5], "original"))
+    half = pd.DataFrame(_seed_rows("iql", [3.30], "half"))
+    res = EntryResults("sensitivity_demand_half", "t", half, 2, 1, 5)
+    seeds = _entry_seeds(res, paper, "saint_arnoult", {"sensitivity_original": original})
+    assert list(seeds["iql"]["t_CAV_duration"]) == [3.30]  # the variant's own run
+    assert list(seeds["iql_original"]["t_CAV_duration"]) == [3.40, 3.42]
+    assert list(seeds["mappo_original"]["t_CAV_duration"]) == [3.5]
+    assert "mappo" not in seeds  # not run yet in the variant
+
+
+def test_rows_from_must_name_an_entry(tmp_path):
+    data = json.loads(paper_file().read_text())
+    data["entries"]["sensitivity_demand_half"]["rows_from"]["iql_original"] = "sensitivity_originl:iql"
+    bad = tmp_path / "paper.json"
+    bad.write_text(json.dumps(data))
+    with pytest.raises(ConfigError, match=r"iql_original: 'sensitivity_originl:iql' names no entry"):
+        load_paper_numbers(bad)

@@ -80,6 +80,10 @@ def load_paper_numbers(path: str | Path | None = None) -> dict[str, Any]:
         _copy_tables(data, entry, e, path)
     for entry, e in data.get("entries", {}).items():
         where = f"{path}: entries.{entry}"
+        for key, source in e.get("rows_from", {}).items():
+            if source.partition(":")[0] not in data["entries"]:
+                raise ConfigError(f"{where}.rows_from.{key}: {source!r} names no entry. Fix: 'ENTRY' or "
+                                  "'ENTRY:ROW', with ENTRY one of the file's entries.")
         if e.get("status") in ("not found", "figure only"):
             if e.get("tables") or not e.get("notes"):
                 raise ConfigError(f"{where}: '{e.get('status')}' has no tables and says why in 'notes'. "
@@ -343,10 +347,11 @@ SHORT = {V.HOLDS: "equal", V.FAILS: "differs", V.TIE: "tie", V.NOT_COMPARABLE: "
 def _entry_seeds(res: EntryResults, paper: dict[str, Any], network: str,
                  all_runs: dict[str, pd.DataFrame]) -> Seeds:
     seeds = our_seeds(res.runs, network)
-    for key, other in paper.get("rows_from", {}).items():  # rows the paper took from another table
+    for key, source in paper.get("rows_from", {}).items():  # rows the paper took from another table
+        other, _, row = source.partition(":")  # "entry" (the same row) or "entry:row"
         theirs = our_seeds(all_runs.get(other, pd.DataFrame()), network)
-        if key in theirs:
-            seeds[key] = theirs[key]
+        if (row or key) in theirs:
+            seeds[key] = theirs[row or key]
     return seeds
 
 
