@@ -559,3 +559,19 @@ def test_rows_from_must_name_an_entry(tmp_path):
     bad.write_text(json.dumps(data))
     with pytest.raises(ConfigError, match=r"iql_original: 'sensitivity_originl:iql' names no entry"):
         load_paper_numbers(bad)
+
+
+def test_an_entry_can_take_some_rows_of_another_entrys_tables(tmp_path):
+    """scenario1_qmix_config3 is judged against scenario1's St. Arnoult QMIX row and baselines only,
+    so the algorithms it does not run are not counted as 'not run yet'."""
+    data = load_paper_numbers()
+    tables = data["entries"]["scenario1_qmix_config3"]["tables"]
+    assert [t["network"] for t in tables] == ["saint_arnoult"]
+    assert set(tables[0]["rows"]) == {"qmix", "human", "aon", "random"}
+    assert tables[0]["rows"]["qmix"] == data["entries"]["scenario1"]["tables"][0]["rows"]["qmix"]
+    raw = json.loads(paper_file().read_text())
+    raw["entries"]["scenario1_qmix_config3"]["tables_from"]["rows"] = ["qmix", "qmx"]
+    bad = tmp_path / "paper.json"
+    bad.write_text(json.dumps(raw))
+    with pytest.raises(ConfigError, match=r"tables_from\.rows: \['qmx'\] are not rows"):
+        load_paper_numbers(bad)

@@ -6,7 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 SUITES = Path(__file__).resolve().parents[2] / "configs" / "suites"
-CATALOGUE = ["scenario1", "scenario1_sumo", "urb_wiring", "scenario2", "adjusted_iql_ippo",
+CATALOGUE = ["scenario1", "scenario1_sumo", "urb_wiring", "scenario1_qmix_config3",
+             "scenario2", "adjusted_iql_ippo",
              "demo_nangis_selfish_adapt", "demo_nemours_malicious", "demo_gretz_altruistic_adapt",
              "sensitivity_demand_half", "sensitivity_demand_double", "sensitivity_global_obs",
              "sensitivity_original"]

@@ -117,6 +117,14 @@ def _copy_tables(data: dict[str, Any], entry: str, e: dict[str, Any], path: Path
     if e.get("tables") or not tables:
         raise ConfigError(f"{path}: entries.{entry}.tables_from: names an entry and networks with tables, "
                           "and the entry has no tables of its own. Fix: correct it.")
+    keep = src.get("rows")  # only these rows (e.g. one algorithm's run and the baselines)
+    if keep is not None:
+        unknown = sorted(set(keep) - {k for t in tables for k in t["rows"]})
+        if unknown:
+            raise ConfigError(f"{path}: entries.{entry}.tables_from.rows: {unknown} are not rows of "
+                              f"{src.get('entry')}'s tables. Fix: name rows they have.")
+        for t in tables:
+            t["rows"] = {k: v for k, v in t["rows"].items() if k in keep}
     e["tables"] = tables
 
 
