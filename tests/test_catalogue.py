@@ -56,10 +56,17 @@ def test_the_catalogue_states_the_papers_protocol():
              "demo_nemours_malicious": ("nemours", "qmix", "malicious", False),
              "demo_gretz_altruistic_adapt": ("gretz_armainvilliers", "vdn", "altruistic", True)}
     for name, (net, alg, behaviour, adapt) in demos.items():
-        (run,) = _trains(name)
-        task, _ = load_task_config(run.kwargs["task_conf"])
-        assert (run.kwargs["net"], run.kwargs["alg"], task.av_behavior, task.should_humans_adapt) == (
-            net, alg, behaviour, adapt)
+        # the paper's deterministic humans (sec:humans) first, at exactly 6,000 days; URB's task file's
+        # stochastic humans kept as a labelled extra
+        paper_run, extra = _trains(name)
+        tasks = [load_task_config(r.kwargs["task_conf"])[0] for r in (paper_run, extra)]
+        for run, task in zip((paper_run, extra), tasks, strict=True):
+            assert (run.kwargs["net"], run.kwargs["alg"], task.av_behavior, task.should_humans_adapt) == (
+                net, alg, behaviour, adapt)
+        assert [t.human_deterministic for t in tasks] == [True, False]
+        assert paper_run.kwargs["task_conf"] == f"{extra.kwargs['task_conf']}_deterministic"
+        over = paper_run.kwargs["overrides"]  # 12 rounds of 480 surrogate + 20 SUMO days
+        assert {"hybrid.num_envs=24", "hybrid.surrogate_days_per_round=480", "hybrid.sumo_days_per_round=20"} <= set(over)
     for name, scale in {"sensitivity_demand_half": 0.5, "sensitivity_demand_double": 2.0}.items():
         for r in _trains(name):
             assert load_task_config(r.kwargs["task_conf"])[0].demand_scale == scale
