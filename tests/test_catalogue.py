@@ -66,7 +66,8 @@ def test_the_catalogue_states_the_papers_protocol():
         assert [t.human_deterministic for t in tasks] == [True, False]
         assert paper_run.kwargs["task_conf"] == f"{extra.kwargs['task_conf']}_deterministic"
         over = paper_run.kwargs["overrides"]  # 12 rounds of 480 surrogate + 20 SUMO days
-        assert {"hybrid.num_envs=24", "hybrid.surrogate_days_per_round=480", "hybrid.sumo_days_per_round=20"} <= set(over)
+        assert {"hybrid.num_envs=24", "hybrid.surrogate_days_per_round=480",
+                "hybrid.sumo_days_per_round=20"} <= set(over)
     for name, scale in {"sensitivity_demand_half": 0.5, "sensitivity_demand_double": 2.0}.items():
         for r in _trains(name):
             assert load_task_config(r.kwargs["task_conf"])[0].demand_scale == scale
