@@ -109,6 +109,8 @@ def _run(root: Path, name: str, names: dict, network: str, task: str, **metrics:
 def scenario1_partly_run(tmp_path):
     """Scenario 1 on St. Arnoult with IPPO (2 seeds) and AON finished, nothing else."""
     ippo = train_names("ippo", "hybrid", "default", 6000, "config1")
+    # trained with whole rounds: 10 rounds of 640 surrogate + 4 SUMO days for the 6,000 asked
+    ippo |= {"sumo_training_days": 40, "surrogate_training_days": 6400, "train_args": {"train_days": 6000}}
     # duration: IPPO's CAVs slower than as humans (as in the paper); travel time: faster (unlike it)
     folders = [_run(tmp_path, f"s1_saint_arnoult_ippo_s{s}", ippo, "saint_arnoult", "config1",
                     t_pre=3.19, t_CAV=t, t_pre_duration=3.16, t_CAV_duration=d, winrate=float(t < 3.19))
@@ -137,14 +139,22 @@ def test_the_page_puts_ours_beside_the_papers_rows_and_judges_each_conclusion(sc
     lines = text.splitlines()
     # the paper's IPPO row with its stds (tab:kpis), the README's older numbers where they differ, then
     # ours in both measures (mean ± sample std of the two seeds) and each cell's verdict against the paper
-    i = lines.index("| **IPPO** | paper [tab:kpis] | 5 | 3.15 | 3.28 (0.004) | 3.33 (0.013) | 3.25 (0.008) "
-                    "| 0.63 (0.015) | 0.13 (0.004) | 1.38 (0.034) | -0.24 (0.067) | 0.06 (0.004) | 0 |")
-    assert lines[i + 1] == "|  | README | 3 |  |  | 3.34 | 3.24 | 0.6 | 0.12 | 1.33 | -0.31 | 0.05 |  |"
-    assert lines[i + 2].startswith("|  | ours, SUMO duration | 2 | 3.1600 ± 0.0000 | n/a | 3.3200 ± 0.0283 |")
+    i = lines.index("| **IPPO** | paper [tab:kpis] | 5 |  | 3.15 | 3.28 (0.004) | 3.33 (0.013) "
+                    "| 3.25 (0.008) | 0.63 (0.015) | 0.13 (0.004) | 1.38 (0.034) | -0.24 (0.067) "
+                    "| 0.06 (0.004) | 0 |")
+    assert lines[i + 1] == "|  | README | 3 |  |  |  | 3.34 | 3.24 | 0.6 | 0.12 | 1.33 | -0.31 | 0.05 |  |"
+    # its training days, marked: 6,440 trained of 6,000 asked (the legend says what the mark means)
+    days = "40 SUMO + 6,400 surrogate = 6,440 (6,000 asked) †"
+    assert lines[i + 2].startswith(f"|  | ours, SUMO duration | 2 | {days} | 3.1600 ± 0.0000 | n/a | "
+                                   "3.3200 ± 0.0283 |")
     assert lines[i + 2].endswith("| 0 (0/2) |")  # WR in duration: neither seed beat its t_pre
-    assert lines[i + 3].startswith("|  | ours, travel time | 2 | 3.1900 ± 0.0000 | n/a | 3.1600 ± 0.0141 |")
+    assert lines[i + 3].startswith("|  | ours, travel time | 2 |  | 3.1900 ± 0.0000 | n/a | "
+                                   "3.1600 ± 0.0141 |")
     assert lines[i + 3].endswith("| 100 (2/2) |")  # in travel time both did
-    assert lines[i + 4].startswith("|  | ours vs paper |  | equal | · | tie |")  # t_CAV: 3.32 vs 3.33
+    assert lines[i + 4].startswith("|  | ours vs paper |  |  | equal | · | tie |")  # t_CAV: 3.32 vs 3.33
+    aon = lines.index(next(line for line in lines if line.startswith("| **AON** | paper")))
+    assert lines[aon + 1].startswith("|  | ours, SUMO duration | 1 | none (a baseline: no training) |")
+    assert "† trained more days than asked: the run's budget was rounded up to whole rounds" in text
     # per-seed differences (0.14, 0.18): mean 0.16, se 0.02, t = 8 on 1 df: one-sided p = 0.040 -> holds;
     # in travel time (-0.02, -0.04): t = -3, p = 0.102 either way -> a tie
     pre = _claim(text, "IPPO", "t_CAV > t_pre")

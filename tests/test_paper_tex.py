@@ -221,3 +221,15 @@ def test_the_contradictions_the_page_lists_are_in_the_paper(tex):
     assert equal == ["ippo", "mappo"] and "human agents" in _table(tex, "tab:kpis")
     # no VDN row in Scenario 1 (the demonstrative experiments are VDN's only appearance)
     assert "VDN" not in _table(tex, "tab:kpis") and all("vdn" not in r for r in kpis.values())
+
+
+def test_the_travel_time_figures_window_is_the_papers(tex):
+    """Each entry's figure names a figure of the paper and smooths by the moving average its
+    caption states (150 episodes in both)."""
+    figures = {e: v["figure"] for e, v in load_paper_numbers()["entries"].items() if "figure" in v}
+    assert set(figures) == {"scenario1", "scenario1_sumo", "scenario2"}
+    for entry, spec in figures.items():
+        start = tex.index(f"\\label{{{spec['source']}}}")
+        caption = tex[tex.rindex("\\caption{", 0, start):start]
+        window = re.search(r"moving average of (\d+)", " ".join(caption.split()))
+        assert window and int(window[1]) == spec["window"], entry

@@ -24,6 +24,7 @@ import pandas as pd
 
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.reporting.comparable import DAYS_COLUMNS, comparable_metrics, is_hybrid
+from urb_jax.reporting.train_days import ASKED
 from urb_jax.reporting.urb_names import leaderboard_fields
 
 KEYS = ["network", "algorithm", "script", "alg_config", "task_config", "env_config", "exp_type"]
@@ -59,11 +60,15 @@ def collect_folders(folders: list[Path]) -> pd.DataFrame:
 
 def _fields(cfg: dict[str, Any]) -> dict[str, Any]:
     """A run's leaderboard fields (URB's names, '?' where unknown), its seed where it has one, and
-    its training days in SUMO and on the surrogate (`comparable.DAYS_COLUMNS`) where recorded."""
+    its training days in SUMO and on the surrogate (`comparable.DAYS_COLUMNS`) and the days it asked
+    for where recorded."""
     fields = leaderboard_fields(cfg)
     seed = fields.pop("torch_seed")
     out = {k: ("?" if v is None else v) for k, v in fields.items()}
     days = {k: cfg[k] for k in DAYS_COLUMNS if cfg.get(k) is not None}
+    asked = (cfg.get("train_args") or {}).get("train_days")
+    if days and asked is not None:  # what it asked for: more trained was a round-up (reporting.train_days)
+        days[ASKED] = asked
     return {**out, **({"torch_seed": seed} if seed is not None else {}), **days}
 
 

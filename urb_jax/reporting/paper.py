@@ -37,7 +37,10 @@ from urb_jax.core.configio import configs_dir, loads_strict
 from urb_jax.core.errors import ConfigError
 from urb_jax.reporting import verdicts as V  # noqa: N812
 from urb_jax.reporting.comparable import comparable_metrics, hybrid_note, is_hybrid
+from urb_jax.reporting.cost import cost_markdown
 from urb_jax.reporting.suite_report import runs_tables
+from urb_jax.reporting.train_days import LEGEND, days_cell
+from urb_jax.reporting.travel_figures import PREFIX, NetworkFigure
 
 PAPER_FILE = ("paper", "urb_paper.json")
 MEASURES = ("SUMO duration", "travel time")
@@ -347,6 +350,8 @@ class EntryResults:
     # the finished seeds of runs not finished yet: kept in the ledger (a machine's end loses nothing),
     # not in the tables (a run is shown with all its seeds)
     partial: pd.DataFrame = field(default_factory=pd.DataFrame)
+    # the paper's travel-time figure per network (reporting.travel_figures), for entries that have one
+    travel: tuple[NetworkFigure, ...] = ()
 
 
 SHORT = {V.HOLDS: "equal", V.FAILS: "differs", V.TIE: "tie", V.NOT_COMPARABLE: "·"}
@@ -458,10 +463,38 @@ def entry_markdown(res: EntryResults, paper: dict[str, Any], all_runs: dict[str,
     if text:
         out += ["Claims of the paper not judged here:", ""]
         out += [f"- \"{c['text']}\" [{c['source']}]: not comparable ({c['why']})." for c in text] + [""]
+    if paper.get("figure"):
+        out += travel_markdown(res.travel, paper["figure"])
     if res.figures:
         out += ["Figures (travel times over days per group, phases as patches; written by the suite):", ""]
         out += [f"![{Path(f).stem}]({f})" for f in res.figures] + [""]
     return "\n".join(out)
+
+
+TRAVEL = """Our analogue of the paper's [{source}], per network: t/t_pre (a day's mean travel time
+over the run's pre-CAV mean, t_pre) of the CAVs, per algorithm (solid: the mean over its seeds with the
+95% t-interval of the mean as a band), and of the humans (orange dashed: averaged over every run of the
+network, as the paper's), on every SUMO day recorded: the human phase, the training days and the test
+days (patches). The training days are drawn in the order they ran: a hybrid round's surrogate days,
+then its SUMO days. Smoothed as the paper's, by a moving average of {window} days (a trailing window of
+days of the axis, within each phase: a hybrid run's few SUMO days per round are averaged over the
+round(s) in the window). **Surrogate days** (dotted steps): a run does not record each surrogate day's
+predictions, only each round's mean predicted travel time over its surrogate days (rounds.csv); each
+step is that mean (over seeds, over t_pre), drawn over the days the round's surrogate days span."""
+
+
+def travel_markdown(figures: tuple[NetworkFigure, ...], spec: dict[str, Any]) -> list[str]:
+    """The entry's travel-time figures, one per network, with the caption (or why a network has none)."""
+    out = [f"### Travel times over the days (the paper's [{spec['source']}])", "",
+           TRAVEL.format(source=spec["source"], window=spec["window"]), ""]
+    if not figures:
+        return [*out, "No network of this entry has a figure yet: none of its runs is under the results "
+                      "folder.", ""]
+    for f in figures:
+        out.append(f"- `{f.network}`: {f.note}.")
+    out.append("")
+    out += [f"![{PREFIX}{f.network}]({f.link})" for f in figures if f.link] + [""]
+    return out
 
 
 DECOMPOSITION = """Per algorithm, in the paper's measure (t_CAV in SUMO trip duration, minutes): the paper's
@@ -610,7 +643,7 @@ def _table_markdown(table: dict[str, Any], ours: Seeds, judged: list[Judged],
         out[-1] += (f" README: URB's GitHub README table ({readme['runs']} runs), "
                     f"[source]({readme['source']}){also}, shown where it differs.")
     out.append("")
-    head = ["algorithm", "numbers", "runs", *(HEADS[c] for c in cols)]
+    head = ["algorithm", "numbers", "runs", "training days", *(HEADS[c] for c in cols)]
     out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     extra = [k for k in ours if k not in table["rows"]]
     for alg in [*table["rows"], *extra]:
@@ -620,31 +653,33 @@ def _table_markdown(table: dict[str, Any], ours: Seeds, judged: list[Judged],
             runs = row.get("runs", table.get("runs")) if "runs" in row else table.get("runs")
             numbers = f"paper [{table['source']}]" + ("" if row["values"] else ": no numbers")
             out.append("| " + " | ".join([f"**{name}**", numbers,
-                                          str(runs or "not stated"),
+                                          str(runs or "not stated"), "",
                                           *(_paper_cell(row, c) for c in cols)]) + " |")
             name = ""
             old = readme["values"].get(alg, {}) if readme else {}
             differ = [c in old and c in row["values"] and old[c] != row["values"][c] for c in cols]
             if readme and any(differ):
-                out.append("| " + " | ".join(["", "README", str(readme["runs"]), *(
+                out.append("| " + " | ".join(["", "README", str(readme["runs"]), "", *(
                     _paper_num(old[c]) if d else "" for c, d in zip(cols, differ, strict=True))]) + " |")
         key = next(iter(ours), None) if alg == "human" else alg
         r = ours.get(key) if key else None
         if r is None:
             why = "not comparable (see below)" if alg in paper.get("not_comparable", {}) else "not run yet"
-            out.append("| " + " | ".join([name, "ours", "", why,
+            out.append("| " + " | ".join([name, "ours", "", "", why,
                                           *[""] * (len(cols) - 1)]) + " |")
             continue
         mine = ["t_pre"] if alg == "human" else cols  # the human row is t_pre itself
+        days = "" if alg == "human" else days_cell(r)
         for m, measure in enumerate(MEASURES):
-            out.append("| " + " | ".join([name, f"ours, {measure}", str(len(r)), *(
+            out.append("| " + " | ".join([name, f"ours, {measure}", str(len(r)), days if m == 0 else "", *(
                 _our_cell(r, c, m) if c in mine else "" for c in cols)]) + " |")
             name = ""
         if row is not None and row["values"]:
             cells = [SHORT[judge_cell(table, alg, c, ours).kind] if c in row["values"] and c in mine else ""
                      for c in cols]
-            out.append("| " + " | ".join(["", "ours vs paper", "", *cells]) + " |")
-    out += ["", "The paper's conclusions, judged on ours (SUMO duration; travel time where it differs):", ""]
+            out.append("| " + " | ".join(["", "ours vs paper", "", "", *cells]) + " |")
+    out += ["", LEGEND, "",
+            "The paper's conclusions, judged on ours (SUMO duration; travel time where it differs):", ""]
     for alg, row in table["rows"].items():
         claims = [j for j in judged if j.row == alg]
         if not claims:
@@ -712,18 +747,6 @@ def _where(j: Judged) -> str:
     return f"{j.network} {NAMES.get(j.row, j.row)}".strip()
 
 
-def _compute_markdown(compute: dict[str, Any]) -> str:
-    hw = compute["hardware"]
-    out = ["## What the paper's runs cost", "",
-           f"\"{compute['caption']}\" [{compute['source']}], on {hw['CPU']}, {hw['GPU']}, {hw['RAM']}, "
-           f"SUMO {hw['SUMO version']} [{hw['source']}]. Not comparable with ours (other hardware, and the "
-           "hybrid trainer runs most days on the surrogate).", "",
-           "| network | algorithm | hours |", "|---|---|---|"]
-    out += [f"| {r['network']} | {NAMES.get(r['algorithm'], r['algorithm'])} | {r['hours']:g} |"
-            for r in compute["runs"]]
-    return "\n".join([*out, ""])
-
-
 def _demand_markdown(demand: dict[str, Any]) -> str:
     ours = [r for r in demand["regions"] if r["network"]]
     rows = ", ".join(f"{r['region']} {r['trips']} trips / {r['od_pairs']} OD pairs" for r in ours)
@@ -742,7 +765,7 @@ def paper_markdown(results: list[EntryResults], paper: dict[str, Any], header: s
     body = [entry_markdown(r, entries.get(r.entry, missing), all_runs) for r in results]
     extra = []
     if "compute" in paper:
-        extra.append(_compute_markdown(paper["compute"]))
+        extra.append(cost_markdown(paper["compute"], all_runs, NAMES))
     if "demand" in paper:
         extra.append(_demand_markdown(paper["demand"]))
     return "\n".join([header, summary_markdown(judged), _contradictions_markdown(paper), *body, *extra])

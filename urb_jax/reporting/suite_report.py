@@ -13,6 +13,7 @@ import pandas as pd
 
 from urb_jax.reporting.leaderboard import KEYS, aggregate, collect_folders
 from urb_jax.reporting.records import plot_phases, read_records
+from urb_jax.reporting.train_days import LEGEND, days_cell
 
 TABLE_COLUMNS = [("t_pre", "t_pre"), ("t_CAV", "t_CAV"), ("t_HDV_test", "t_HDV"), ("t_test", "t_all"),
                  ("cost_of_learning", "c_all"), ("delta_V", "ΔV"), ("delta_L", "ΔL"),
@@ -29,23 +30,25 @@ def runs_tables(runs: pd.DataFrame) -> str:
     if runs.empty:
         return ""
     table = aggregate(runs)
+    seeds = dict(iter(runs.groupby(KEYS, sort=True)))
     out = []
     for (net, task), g in table.groupby(["network", "task_config"], sort=True):
         out.append(f"### {net}, task {task}\n")
-        head = ["algorithm", "seeds", "WR %", *[name for _, name in TABLE_COLUMNS]]
+        head = ["algorithm", "seeds", "training days", "WR %", *[name for _, name in TABLE_COLUMNS]]
         out.append("| " + " | ".join(head) + " |")
         out.append("|" + "---|" * len(head))
         names = [run_label(r) for _, r in g.iterrows()]
         for (_, r), name in zip(g.iterrows(), names, strict=True):
             if names.count(name) > 1:  # e.g. one algorithm with two configs or trainers: say which
                 name = f"{name} ({r['alg_config']}; {r['script']})"
-            cells = [name, str(int(r["runs"])), _num(r.get("WR"), 0)]
+            days = days_cell(seeds[tuple(r[k] for k in KEYS)])
+            cells = [name, str(int(r["runs"])), days, _num(r.get("WR"), 0)]
             for col, _ in TABLE_COLUMNS:
                 mean, std = r.get(f"{col}_mean", np.nan), r.get(f"{col}_std", np.nan)
                 cells.append(_num(mean) + (f" ± {std:.4f}" if r["runs"] > 1 and std == std else ""))
             out.append("| " + " | ".join(cells) + " |")
         out.append("")
-    return "\n".join(out)
+    return "\n".join([*out, LEGEND, ""])
 
 
 def run_label(row: pd.Series) -> str:

@@ -36,6 +36,7 @@ from urb_jax.reporting.paper import (
 )
 from urb_jax.reporting.provenance import PROVENANCE, provenance
 from urb_jax.reporting.suite_report import suite_figures, suite_tables
+from urb_jax.reporting.travel_figures import PREFIX, NetworkFigure, network_figures
 from urb_jax.runs.baseline import run_baseline
 from urb_jax.runs.folder import CONFIG_FILE, run_status, run_writer, train_run_names
 from urb_jax.runs.request import BaselineRequest, ResumeRequest, TrainRequest, request_fields
@@ -257,7 +258,8 @@ def paper_report(results_dir: str | Path, out: str | Path, allow_fewer: bool = F
     figures_dir = out.parent / f"{out.stem}_figures"
     ledger_file = ledger_path(out)
     ledger = read_ledger(ledger_file)
-    results = [_entry_results(entry, results_dir, figures_dir, ledger) for entry in paper["entries"]]
+    results = [_entry_results(entry, results_dir, figures_dir, ledger, paper["entries"][entry].get("figure"))
+               for entry in paper["entries"]]
     if not allow_fewer:
         _refuse_fewer(out, {r.entry: r.runs_done for r in results}, results_dir, ledger_file)
     summary = "\n".join(
@@ -296,10 +298,12 @@ def _refuse_fewer(out: Path, done: dict[str, int], results_dir: Path, ledger_fil
                           "--results-dir at where they are, or pass --allow-fewer to drop them.")
 
 
-def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.DataFrame) -> EntryResults:
+def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.DataFrame,
+                   figure: dict[str, Any] | None = None) -> EntryResults:
     """An entry's finished runs: those under results_dir, then the ledger's rows of the entry's other
     runs. Figures of the runs here are copied to figures_dir/<entry>/ (next to the page, so the
-    page's links hold wherever the results folder is); every figure there is linked."""
+    page's links hold wherever the results folder is); every figure there is linked. An entry with
+    the paper's travel-time `figure` gets it drawn there per network from its runs here."""
     spec = load_suite(find_config("suites", entry))
     planned = list(dict.fromkeys(name for r in spec.runs for name in r.folder_names()))
     done_here = finished_here(results_dir, planned)  # seeds of unfinished runs too
@@ -317,11 +321,17 @@ def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.
         report = write_report(spec.title, folders, results_dir / f"suite_{entry}", spec.preamble)
         for png in sorted((report.parent / "figures").glob("*.png")):
             write_bytes(figures_dir / entry / png.name, png.read_bytes())
-    figures = [os.path.relpath(p, figures_dir.parent) for p in sorted((figures_dir / entry).glob("*.png"))]
+    travel: tuple[NetworkFigure, ...] = ()
+    if figure:
+        nets = list(dict.fromkeys(str(r.kwargs["net"]) for r in spec.runs if r.kind == "train"))
+        travel = network_figures(entry, nets, folders, figures_dir / entry, figures_dir.parent,
+                                 int(figure["window"]))
+    figures = [os.path.relpath(p, figures_dir.parent) for p in sorted((figures_dir / entry).glob("*.png"))
+               if not p.name.startswith(PREFIX)]
     seeds = [len(r.kwargs.get("seeds") or [0]) for r in spec.runs if r.kind == "train"]
     missing = [r.exp_id for r in spec.runs if r not in done]
     return EntryResults(entry, spec.title, runs, len(spec.runs), len(done), max(seeds, default=1), figures,
-                        missing, partial)
+                        missing, partial, travel)
 
 
 # The request fields a suite file may give each kind (the commands' own flags, as Python names).
