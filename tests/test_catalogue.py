@@ -46,7 +46,7 @@ def test_the_catalogue_states_the_papers_protocol():
         fewer = r.exp_id == "s1_ingolstadt_custom_qmix"
         assert r.kwargs["train_days"] == 6000
         assert r.kwargs["seeds"] == ([0, 1, 2] if fewer else [0, 1, 2, 3, 4])
-    assert "Ingolstadt's QMIX: 3" in load_suite(find_config("suites", "scenario1")).preamble
+    assert "3 for Ingolstadt's QMIX" in load_suite(find_config("suites", "scenario1")).preamble
     for r in _trains("scenario2"):  # full autonomy
         assert load_task_config(r.kwargs["task_conf"])[0].ratio_machines == 1.0
         assert r.kwargs["net"] == "saint_arnoult"
