@@ -130,7 +130,9 @@ def test_every_shipped_task_and_env_config_loads():
     assert {"config1", "config2", "test", "altruistic_10", "altruistic_100", "militant_60"} <= set(names)
     catalogue = {"scenario2", "scenario2_cooperative", "selfish_40_adapt", "altruistic_40_adapt",
                  "demand_half", "demand_double"}  # the paper catalogue's variants (configs/suites)
-    assert catalogue <= set(names) and len(names) == 3 + 8 * 3 + 10 + len(catalogue)
+    extensions = {"varying_demand_40"}  # urb-jax's own tasks beyond URB's (docs/experiment.md)
+    assert catalogue | extensions <= set(names)
+    assert len(names) == 3 + 8 * 3 + 10 + len(catalogue) + len(extensions)
     for name in names:
         cfg, _ = load_task_config(name)
         assert 0.0 <= cfg.ratio_machines <= 1.0
