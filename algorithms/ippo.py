@@ -30,7 +30,15 @@ import optax
 
 from urb_jax.algorithms.configs import PPOConfig
 from urb_jax.algorithms.frames import frame_obs, turn_positions, unacted
-from urb_jax.algorithms.learner import Day, Learner, collect_then_update, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.learner import (
+    Day,
+    Learner,
+    active_mean,
+    collect_then_update,
+    day_metrics,
+    reset_envs,
+    scan_train,
+)
 from urb_jax.algorithms.networks import MLP, hidden_layers, make_agent_net, obs_scale, take_agents
 from urb_jax.algorithms.policy import entropy, masked
 from urb_jax.algorithms.updates import adam_step, clipped_adam, days_shape, flatten_days, gae, minibatch_days
@@ -50,6 +58,7 @@ class Batch(NamedTuple):
     log_prob: jnp.ndarray  # [M, C] behaviour policy
     advantage: jnp.ndarray  # [M, C]
     target: jnp.ndarray  # [M, C] value target (GAE return)
+    active: jnp.ndarray | None = None  # [M, C] the CAVs that travelled (Day.active); None: all
 
 
 def ppo_loss(actor_logits: jnp.ndarray, values: jnp.ndarray, batch: Batch, clip_eps: float,
@@ -60,9 +69,9 @@ def ppo_loss(actor_logits: jnp.ndarray, values: jnp.ndarray, batch: Batch, clip_
     ratio = jnp.exp(logp_a - batch.log_prob)
     adv = batch.advantage
     surrogate = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - clip_eps, 1.0 + clip_eps) * adv)
-    policy_loss = -surrogate.mean()
-    value_loss = optax.huber_loss(values, batch.target, delta=1.0).mean()
-    ent = entropy(actor_logits).mean()
+    policy_loss = -active_mean(surrogate, batch.active)
+    value_loss = active_mean(optax.huber_loss(values, batch.target, delta=1.0), batch.active)
+    ent = active_mean(entropy(actor_logits), batch.active)
     total = policy_loss + critic_coef * value_loss - entropy_coef * ent
     return total, {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": ent}
 
@@ -171,7 +180,7 @@ def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) 
         values = critic_apply(params["critic"], days.obs)  # [T, B, C]
         last_value = critic_apply(params["critic"], days.next_obs[-1])
         adv, targets = gae(days.reward, values, days.done, last_value, config.gamma, config.lmbda)
-        return Batch(days.obs, days.action, log_prob, adv, targets)
+        return Batch(days.obs, days.action, log_prob, adv, targets, days.active)
 
     turn = jnp.asarray(turn_positions(env))
     n_cav = env.n_cavs
@@ -198,7 +207,10 @@ def make_learner(config: PPOConfig, env: RoutingEnv, centralised: bool = False) 
                 mb = min(minibatch_days(config.minibatch_size, env.n_cavs), total)
                 n_minibatches = max(1, total // mb)
         adv = batch.advantage
-        if config.normalize_advantage:  # over the iteration's batch: see module docstring
+        if config.normalize_advantage and batch.active is not None:  # over the CAVs that travelled
+            mean = active_mean(adv, batch.active)
+            adv = (adv - mean) / (jnp.sqrt(active_mean((adv - mean) ** 2, batch.active)) + 1e-8)
+        elif config.normalize_advantage:  # over the iteration's batch: see module docstring
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
         data = flatten_days(batch._replace(advantage=adv))
 

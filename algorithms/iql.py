@@ -21,7 +21,15 @@ import jax.numpy as jnp
 from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
 from urb_jax.algorithms.configs import IQLConfig
 from urb_jax.algorithms.frames import make_replay
-from urb_jax.algorithms.learner import Day, Learner, collect_then_update, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.learner import (
+    Day,
+    Learner,
+    active_mean,
+    collect_then_update,
+    day_metrics,
+    reset_envs,
+    scan_train,
+)
 from urb_jax.algorithms.networks import hidden_layers, make_agent_net
 from urb_jax.algorithms.policy import eps_greedy_policy, linear_schedule, masked
 from urb_jax.algorithms.updates import (
@@ -47,12 +55,13 @@ class RunnerState(NamedTuple):
 
 
 def td_loss(q_apply, params: Any, target: Any, batch: Day, mask: jnp.ndarray, gamma: float) -> jnp.ndarray:
-    """Mean squared TD(0) error over every CAV of every day in the batch."""
+    """Mean squared TD(0) error over every CAV of every day in the batch (that travelled that day:
+    `Day.active`)."""
     q = q_apply(params, batch.obs)  # [M, C, K]
     q_a = jnp.take_along_axis(q, batch.action[..., None], axis=-1)[..., 0]
     q_next = masked(q_apply(target, batch.next_obs), mask).max(-1)
     y = batch.reward + gamma * (1.0 - batch.done.astype(jnp.float32)) * q_next
-    return jnp.mean((q_a - jax.lax.stop_gradient(y)) ** 2)
+    return active_mean((q_a - jax.lax.stop_gradient(y)) ** 2, batch.active)
 
 
 def make_network(config: IQLConfig, env: RoutingEnv):
@@ -88,8 +97,8 @@ def make_learner(config: IQLConfig, env: RoutingEnv) -> Learner:
         k_init, k_env, _ = jax.random.split(key, 3)
         params = net.init(k_init)
         env_states = reset_envs(env, k_env, n_envs)
-        return RunnerState(params, params, tx.init(params),
-                           buffer_init(replay.example(Day.zeros(n_cav, env.obs_size)), capacity),
+        template = Day.zeros(n_cav, env.obs_size, active=env.day_demand is not None)
+        return RunnerState(params, params, tx.init(params), buffer_init(replay.example(template), capacity),
                            env_states, env.default_params, jnp.zeros((), jnp.int32))
 
     def policy(runner: RunnerState, explore: bool = True):

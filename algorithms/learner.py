@@ -25,13 +25,26 @@ class Day(NamedTuple):
     next_obs: jnp.ndarray  # [C, D] provisional observation of the next day
     time_cav: jnp.ndarray  # [] mean CAV travel time, minutes
     time_human: jnp.ndarray  # []
+    # [C] bool, the CAVs that travelled (the task's day_participation); None (no leaf, so fixed
+    # demand keeps its pytrees, buffers and checkpoints): every CAV. A CAV that stayed home took no
+    # action: the losses leave its row out (`active_mean`).
+    active: jnp.ndarray | None = None
 
     @classmethod
-    def zeros(cls, n_cavs: int, obs_size: int) -> Day:
-        """One day of zeros: the template a replay memory of days is shaped on."""
+    def zeros(cls, n_cavs: int, obs_size: int, active: bool = False) -> Day:
+        """One day of zeros: the template a replay memory of days is shaped on (`active`: with
+        the per-CAV travelled mask, for an env with day_demand)."""
         c, d = n_cavs, obs_size
         return cls(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)), jnp.zeros((c,), bool),
-                   jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()))
+                   jnp.zeros((c, d)), jnp.zeros(()), jnp.zeros(()), jnp.zeros((c,), bool) if active else None)
+
+
+def active_mean(x: jnp.ndarray, active: jnp.ndarray | None) -> jnp.ndarray:
+    """Mean of per-CAV terms x [..., C] over the rows of CAVs that travelled (`active`, same shape;
+    None: every row, the plain mean)."""
+    if active is None:
+        return jnp.mean(x)
+    return jnp.where(active, x, 0.0).sum() / jnp.maximum(active.sum(), 1)
 
 
 def env_day(env: RoutingEnv, policy: Policy, key: jax.Array, state: EnvState, params: EnvParams = None,
@@ -41,7 +54,8 @@ def env_day(env: RoutingEnv, policy: Policy, key: jax.Array, state: EnvState, pa
     k_act, k_step = jax.random.split(key)
     obs, actions = act_by_levels(env, k_act, state, policy, levels)
     next_obs, state, rewards, dones, info = env.step(k_step, state, actions, params)
-    return state, Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"])
+    return state, Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"],
+                      info.get("active"))
 
 
 def collect(env: RoutingEnv, policy: Policy, key: jax.Array, states: EnvState, n_days: int,
@@ -120,7 +134,7 @@ def reset_envs(env: RoutingEnv, key: jax.Array, n_envs: int) -> EnvState:
 
 def day_metrics(days: Day) -> dict[str, jnp.ndarray]:
     return {
-        "reward": days.reward.mean(),
+        "reward": active_mean(days.reward, days.active),
         "time_cav": days.time_cav.mean(),
         "time_human": days.time_human.mean(),
     }

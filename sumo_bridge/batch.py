@@ -12,6 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from urb_jax.city.demand import ABSENT
 from urb_jax.city.scenario import Scenario
 
 
@@ -57,12 +58,13 @@ def cav_mask(scenario: Scenario, is_cav: np.ndarray | None) -> np.ndarray:
 
 
 def check_choices(scenario: Scenario, choices: np.ndarray) -> np.ndarray:
-    """[N] int64 route indices in [0, K), or ValueError."""
+    """[N] int64 route indices in [0, K), or ABSENT (-1: the driver stays home that day), or
+    ValueError."""
     c = np.asarray(choices)
     n, k = scenario.n_agents, scenario.k
     if c.shape != (n,):
         raise ValueError(f"choices has shape {c.shape}; expected ({n},) route indices in Scenario order")
-    if not np.issubdtype(c.dtype, np.integer) or c.min() < 0 or c.max() >= k:
-        raise ValueError(f"choices must be integer route indices in [0, {k}); got {c.dtype} "
-                         f"in [{c.min()}, {c.max()}]")
+    if not np.issubdtype(c.dtype, np.integer) or c.min() < ABSENT or c.max() >= k:
+        raise ValueError(f"choices must be integer route indices in [0, {k}) or {ABSENT} (stays home); got "
+                         f"{c.dtype} in [{c.min()}, {c.max()}]")
     return c.astype(np.int64)

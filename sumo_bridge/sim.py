@@ -25,13 +25,14 @@ from types import ModuleType
 
 import numpy as np
 
+from urb_jax.city.demand import ABSENT
 from urb_jax.city.scenario import Scenario
 from urb_jax.sumo_bridge.batch import as_batch, cav_mask, check_choices
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.sumo_bridge.keys import scenario_key, sumo_version
 from urb_jax.sumo_bridge.logs import redirect_fds
 from urb_jax.sumo_bridge.tripinfo import insertion_order, parse_tripinfo, route_id, write_routes_file
-from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayResult
+from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, STAYED_HOME, DayResult
 
 # libsumo is one simulation per process: which Simulator's state it holds, if started at all.
 _LIBSUMO: dict[str, object] = {"started": False, "owner": None}
@@ -150,10 +151,12 @@ class Simulator:
             raise ValueError(f"SumoConfig.max_sim_time_s={cfg.max_sim_time_s} must exceed the last "
                              f"departure ({last_depart} s)")
         add = libsumo.vehicle.add
+        home = choices == ABSENT  # [N] drivers who stay home today: no vehicle
         for i in insertion_order(depart, cav):
-            add(ids[i], route_id(scn.agent_od[i], choices[i]), typeID="AV" if cav[i] else "Human",
-                depart=str(int(depart[i])))
-        pos = {v: i for i, v in enumerate(ids)}
+            if not home[i]:
+                add(ids[i], route_id(scn.agent_od[i], choices[i]), typeID="AV" if cav[i] else "Human",
+                    depart=str(int(depart[i])))
+        pos = {v: i for i, v in enumerate(ids) if not home[i]}
         removed = _DaySteps(libsumo, cfg, pos, last_depart).run()
 
         end_time = libsumo.simulation.getTime()
@@ -162,12 +165,14 @@ class Simulator:
         trips = parse_tripinfo(trip_path)
         trip_path.unlink(missing_ok=True)
         return self._result(scn, trips, removed, pos, depart, seed, teleports, end_time,
-                            time.perf_counter() - t0)
+                            time.perf_counter() - t0, home)
 
     def _result(self, scn: Scenario, trips: dict, removed: dict, pos: dict, depart: np.ndarray,
-                seed: int, teleports: int, end_time: float, wall: float) -> DayResult:
+                seed: int, teleports: int, end_time: float, wall: float, home: np.ndarray) -> DayResult:
+        """The day's DayResult; `pos`: the inserted vehicles' rows, `home` [N]: who stayed home
+        (no vehicle: STAYED_HOME, every time NaN, in no statistic)."""
         cfg = self.config
-        n = len(pos)
+        n = scn.n_agents
         nan = np.full(n, np.nan)
         leave, dur, length, loss, delay = nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy()
         status = np.full(n, REMOVED_CAP, dtype=np.int8)  # overwritten for every vehicle seen
@@ -191,18 +196,19 @@ class Simulator:
             if not seen[i]:
                 leave[i], status[i], length[i], loss[i] = t, st, 0.0, np.nan
                 delay[i] = t - depart[i]
-        missing = ~seen & np.isnan(leave)
+        missing = ~seen & np.isnan(leave) & ~home
         if missing.any() and end_time >= cfg.max_sim_time_s:  # still waiting at the cap
             leave[missing], status[missing], length[missing] = end_time, REMOVED_CAP, 0.0
             delay[missing] = end_time - depart[missing]
         elif missing.any():
             raise RuntimeError(f"{int(missing.sum())} vehicle(s) have no SUMO result, e.g. "
                                f"{[k for k, i in pos.items() if missing[i]][:5]}")
+        status[home] = STAYED_HOME
         tt = (leave + cfg.tt_offset_s - depart) / 60.0
-        out = status != ARRIVED
+        out = (status != ARRIVED) & ~home  # removed
         if cfg.stuck_penalty == "urb":
             tt[out] = scn.simulation_timesteps / 60.0
-        arrived = ~out
+        arrived = status == ARRIVED
         with np.errstate(invalid="ignore", divide="ignore"):
             speed = np.where(arrived, length / dur, np.nan)
         # SUMO's statistic output averages over every vehicle with a tripinfo (removed included).

@@ -16,6 +16,7 @@ from urb_jax.city.scenario import Scenario
 ARRIVED = 0
 REMOVED_STUCK = 1  # stood still too long (SumoConfig.stuck_rule), charged SumoConfig.stuck_penalty
 REMOVED_CAP = 2  # still driving or waiting at SumoConfig.max_sim_time_s, charged like stuck
+STAYED_HOME = 3  # chose ABSENT (the task's day_participation): no vehicle, every time NaN
 
 
 @dataclass(frozen=True)
@@ -27,7 +28,7 @@ class DayResult:
     mean_speed: np.ndarray  # [N] m/s, route_length / duration (NaN if removed)
     time_loss: np.ndarray  # [N] s, SUMO timeLoss
     depart_delay: np.ndarray  # [N] s, SUMO departDelay
-    status: np.ndarray  # [N] int8: ARRIVED, REMOVED_STUCK or REMOVED_CAP
+    status: np.ndarray  # [N] int8: ARRIVED, REMOVED_STUCK, REMOVED_CAP or STAYED_HOME
     seed: int
     # Day statistics as SUMO's statistic output reports them (arrived vehicles).
     stat_mean_speed: float  # m/s, mean over arrived trips of routeLength / duration

@@ -129,8 +129,11 @@ def test_every_shipped_task_and_env_config_loads():
     names = sorted(p.stem for p in (configs_dir() / "task").glob("*.json"))
     assert {"config1", "config2", "test", "altruistic_10", "altruistic_100", "militant_60"} <= set(names)
     catalogue = {"scenario2", "scenario2_cooperative", "selfish_40_adapt", "altruistic_40_adapt",
-                 "demand_half", "demand_double"}  # the paper catalogue's variants (configs/suites)
-    assert catalogue <= set(names) and len(names) == 3 + 8 * 3 + 10 + len(catalogue)
+                 "demand_half", "demand_double", "selfish_40_adapt_deterministic",
+                 "altruistic_40_adapt_deterministic", "malicious_40_deterministic"}  # configs/suites
+    extensions = {"varying_demand_40"}  # urb-jax's own tasks beyond URB's (docs/experiment.md)
+    assert catalogue | extensions <= set(names)
+    assert len(names) == 3 + 8 * 3 + 10 + len(catalogue) + len(extensions)
     for name in names:
         cfg, _ = load_task_config(name)
         assert 0.0 <= cfg.ratio_machines <= 1.0

@@ -398,6 +398,11 @@ def run_references(folder: str | Path, networks_dir: str | None = None, cfg: Sea
     folder = Path(folder)
     t0 = time.perf_counter()
     conf = run_config(folder)
+    if float(conf.get("day_participation", 1.0)) < 1.0:
+        raise UrbJaxError(f"{folder / 'exp_config.json'}: key 'day_participation' = "
+                          f"{conf['day_participation']}: its days vary in who travels, and the optimum "
+                          "and equilibrium references are defined for one fixed demand. Fix: ask for the "
+                          "references of a run with day_participation 1.")
     scn = scenario_of_run(folder, networks_dir)
     rec = read_records(folder, columns=["day", "phase"])
     test_days = rec.loc[rec["phase"] == PHASE_TEST, "day"]

@@ -13,6 +13,10 @@ import numpy as np
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.errors import ConfigError
 
+# A day's route choice for a driver who does not travel that day (the task's day_participation):
+# no SUMO vehicle, no surrogate flow, not observed, no learning (urb_jax.game.demand).
+ABSENT = -1
+
 
 def scale_demand(
     scn: Scenario, scale: float, *, seed: int, mode: str = "auto", jitter_s: int = 60

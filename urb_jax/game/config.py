@@ -19,6 +19,7 @@ from urb_jax.core.configio import Loaded, Override, find_config, from_dict, load
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.ranges import DAYS, FRACTION, Range, above, between, check_ranges
 from urb_jax.core.urb_keys import ENV_FAMILY, TASK_FAMILY
+from urb_jax.game.demand import DayDemand
 from urb_jax.game.humans import HumanParams
 from urb_jax.game.observations import OBSERVATION_TYPES
 from urb_jax.game.rewards import CREDITS, behaviour_coefficients
@@ -65,6 +66,9 @@ class TaskConfig:
     # URB's marginal-cost tasks (config_marginal_*: marginal_cost_coefficient_beta): each CAV also pays
     # beta x the delay it adds to everyone else (game.rewards.marginal_cost_rewards); 0: none
     marginal_cost_beta: float = 0.0
+    # Demand that varies day to day (game.demand): each driver travels on a given day after mutation
+    # with this probability, drawn anew each day from the env seed; 1: URB's fixed demand
+    day_participation: float = 1.0
 
     RANGES: ClassVar[dict[str, Range]] = {
         "ratio_machines": FRACTION, "human_learning_episodes": between(0, DAYS), "test_eps": between(0, DAYS),
@@ -76,6 +80,7 @@ class TaskConfig:
         "demand_scale": above(0, 100, "agents x demand_scale vehicles a day; URB's tasks: 0.5 to 2"),
         "demand_jitter_s": between(0, DAY_LIMIT_S),
         "marginal_cost_beta": between(0, 1000, "URB: 0 to 5"),
+        "day_participation": above(0, 1, "a driver's chance to travel on a day; 1: URB's fixed demand"),
     }
 
     def __post_init__(self) -> None:
@@ -94,6 +99,15 @@ class TaskConfig:
         """The keys whose rewards need the calibrated surrogate's derivative (none: URB's rewards)."""
         return [key for key, on in (("reward_credit", self.reward_credit == "marginal"),
                                     ("marginal_cost_beta", self.marginal_cost_beta != 0.0)) if on]
+
+    @property
+    def varies_daily(self) -> bool:
+        """Demand varies day to day (`day_participation` < 1)."""
+        return self.day_participation < 1.0
+
+    def day_demand(self, env_seed: int) -> DayDemand | None:
+        """Who travels each day after mutation under env seed `env_seed` (None: everyone, URB)."""
+        return DayDemand(int(env_seed), self.day_participation) if self.varies_daily else None
 
     @property
     def reward_coefficients(self) -> tuple[float, float, float, float]:

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
+from urb_jax.game.demand import ABSENT, DayDemand, travelled
 from urb_jax.game.humans import HumanParams, HumanState, act, act_jit, aon_routes, end_day_jit, init_humans
 from urb_jax.game.observations import ObservationSpec, make_observation_spec, observe
 from urb_jax.game.rewards import CREDITS, cav_rewards, credit_rewards, externalities, marginal_cost_rewards
@@ -73,6 +74,8 @@ class RoutingEnv:
     # URB's marginal-cost tasks: minus beta x the delay each CAV adds to everyone else, from the same
     # derivative (game.rewards.marginal_cost_rewards); 0: none
     marginal_cost_beta: float = 0.0
+    # Demand that varies day to day (game.demand): who travels on day `state.day`; None: everyone
+    day_demand: DayDemand | None = None
 
     @property
     def uses_model(self) -> bool:
@@ -82,6 +85,9 @@ class RoutingEnv:
     def __post_init__(self) -> None:
         if self.reward_credit not in CREDITS:
             raise ValueError(f"reward_credit {self.reward_credit!r}: use one of {CREDITS}")
+        if self.day_demand is not None and self.uses_model:
+            raise ValueError("day_demand with reward_credit 'marginal' or marginal_cost_beta: the model's "
+                             "externalities do not leave out the drivers who stay home")
         scn = self.scenario
         is_cav = np.asarray(self.is_cav, dtype=bool)
         object.__setattr__(self, "is_cav", is_cav)
@@ -137,8 +143,19 @@ class RoutingEnv:
         return self.observe(state, cav_actions), state
 
     def joint_actions(self, state: EnvState, cav_actions: jnp.ndarray) -> jnp.ndarray:
-        """[N] everyone's route today."""
-        return state.human_actions.at[self.cav_index].set(cav_actions.astype(jnp.int32))
+        """[N] everyone's route today; ABSENT (-1) for a driver who stays home on day `state.day`
+        (`day_demand`), so every consumer of the day's choices (observations, SUMO, the
+        surrogate, the humans' learning) sees the same drivers."""
+        joint = state.human_actions.at[self.cav_index].set(cav_actions.astype(jnp.int32))
+        if self.day_demand is None:
+            return joint
+        return jnp.where(self.day_demand.present(state.day, self.n_agents), joint, ABSENT)
+
+    def active(self, state: EnvState) -> jnp.ndarray | None:
+        """[C] bool: the CAVs that travel on day `state.day` (None: every CAV, fixed demand)."""
+        if self.day_demand is None:
+            return None
+        return self.day_demand.present(state.day, self.n_agents)[self.cav_index]
 
     def observe(self, state: EnvState, cav_actions: jnp.ndarray) -> jnp.ndarray:
         """[C, obs_size] CAV observations given today's CAV choices (earlier departures only count)."""
@@ -195,16 +212,21 @@ class RoutingEnv:
             raise ValueError("reward_credit 'marginal' and marginal_cost_beta need the model's externalities "
                              "of a measured day (step_with_times(..., model=env.model_externalities(params, "
                              "choices)))")
+        went = None if self.day_demand is None else travelled(choices)  # [N] who travelled
+        if went is not None:  # a driver who stayed home has no time (SUMO: NaN): 0, masked below
+            times = jnp.where(went, times, 0.0)
         if self.reward_credit == "marginal":
             assert model is not None  # uses_model: refused above when missing
             rewards_all = credit_rewards(times, is_cav, self.reward_coefficients, model[0])
         else:
-            rewards_all = cav_rewards(times, is_cav, self.reward_coefficients)
+            rewards_all = cav_rewards(times, is_cav, self.reward_coefficients, went)
+        if went is not None:
+            rewards_all = jnp.where(went, rewards_all, 0.0)
         if self.marginal_cost_beta != 0.0:
             assert model is not None  # uses_model: refused above when missing
             rewards_all = marginal_cost_rewards(rewards_all, model[0], self.marginal_cost_beta)
         humans = end_day_jit(keys.learn, state.humans, choices, times, self.human_params, self.is_cav,
-                             learn_today=self.humans_adapt)
+                             learn_today=self.humans_adapt, travelled=went)
         human_actions = act_jit(keys.act_next, humans, self.human_params, jnp.asarray(self.scenario.fft))
         new_state = EnvState(humans, human_actions, cav_actions.astype(jnp.int32), times, state.day + 1)
         next_obs, info = self._day_outputs_jit(new_state, choices)
@@ -215,10 +237,16 @@ class RoutingEnv:
         """(tomorrow's provisional CAV observations [C, D], the day's info) after a day (jitted once
         per env as `_day_outputs_jit`)."""
         is_cav, times = jnp.asarray(self.is_cav), new_state.times
+        cav, human = is_cav, ~is_cav
+        if self.day_demand is not None:  # the day's means cover the drivers who travelled
+            went = travelled(choices)
+            cav, human = cav & went, human & went
         info = {
             "times": times,
             "choices": choices,
-            "mean_time_cav": jnp.where(is_cav, times, 0.0).sum() / jnp.maximum(is_cav.sum(), 1),
-            "mean_time_human": jnp.where(~is_cav, times, 0.0).sum() / jnp.maximum((~is_cav).sum(), 1),
+            "mean_time_cav": jnp.where(cav, times, 0.0).sum() / jnp.maximum(cav.sum(), 1),
+            "mean_time_human": jnp.where(human, times, 0.0).sum() / jnp.maximum(human.sum(), 1),
         }
+        if self.day_demand is not None:
+            info["active"] = went[self.cav_index]  # [C] the CAVs that travelled (acted) today
         return self.observe(new_state, new_state.cav_actions), info

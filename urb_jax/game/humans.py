@@ -166,18 +166,35 @@ def learn(
 
 def end_day(
     key: jax.Array, state: HumanState, choices: jnp.ndarray, times: jnp.ndarray, params: HumanParams,
-    is_cav: np.ndarray | jnp.ndarray, learn_today: bool,
+    is_cav: np.ndarray | jnp.ndarray, learn_today: bool, travelled: jnp.ndarray | None = None,
 ) -> HumanState:
     """Human knowledge after a day of `choices` [N] and `times` [N] (minutes): the one day-end rule.
 
     On a learning day the humans (not the CAVs) update their expected times (`learn`); otherwise
     their knowledge is frozen and everyone only remembers today's route (`last_action`, the
     reference of the switching threshold). Whether a day is a learning day is the caller's phase
-    rule (the task's `should_humans_adapt`, `RoutingEnv.humans_adapt`).
+    rule (the task's `should_humans_adapt`, `RoutingEnv.humans_adapt`). `travelled` ([N] bool,
+    None: everyone): the drivers who travelled today (the task's `day_participation`).
     """
+    if travelled is not None:
+        return _end_day_present(key, state, choices, times, params, is_cav, learn_today, travelled)
     if learn_today:
         return learn(key, state, choices, times, params, learning=~jnp.asarray(is_cav))
     return state._replace(last_action=jnp.asarray(choices, jnp.int32))
+
+
+def _end_day_present(key: jax.Array, state: HumanState, choices: jnp.ndarray, times: jnp.ndarray,
+                     params: HumanParams, is_cav: np.ndarray | jnp.ndarray, learn_today: bool,
+                     travelled: jnp.ndarray) -> HumanState:
+    """`end_day` when some drivers stayed home (`travelled` [N] False; their choice is ABSENT, -1):
+    a driver learns only from a day it travelled, and one who stayed home keeps yesterday's
+    route as the switching threshold's reference (its knowledge is untouched)."""
+    routes = jnp.where(travelled, choices, state.last_action).astype(jnp.int32)  # [N]
+    if learn_today:
+        learning = ~jnp.asarray(is_cav) & travelled
+        done = learn(key, state, jnp.maximum(routes, 0), times, params, learning=learning)
+        return done._replace(last_action=routes)
+    return state._replace(last_action=routes)
 
 
 # Jitted entry points for callers that run day by day outside jit (the SUMO protocol, PettingZoo,

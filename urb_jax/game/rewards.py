@@ -48,19 +48,26 @@ def _masked_mean(x: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
     return jnp.where(count > 0, total / jnp.maximum(count, 1), 0.0)
 
 
-def group_means(times: jnp.ndarray, is_cav: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
-    """(mean over CAVs, mean over humans, mean over all) along the last axis."""
+def group_means(times: jnp.ndarray, is_cav: jnp.ndarray, travelled: jnp.ndarray | None = None
+                ) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
+    """(mean over CAVs, mean over humans, mean over all) along the last axis; `travelled` [..., N]
+    (None: everyone): only the drivers who travelled that day count."""
     is_cav = jnp.asarray(is_cav, dtype=bool)
+    if travelled is not None:
+        return (_masked_mean(times, is_cav & travelled), _masked_mean(times, ~is_cav & travelled),
+                _masked_mean(times, travelled))
     all_mask = jnp.ones_like(is_cav)
     return _masked_mean(times, is_cav), _masked_mean(times, ~is_cav), _masked_mean(times, all_mask)
 
 
 def cav_rewards(
-    times: jnp.ndarray, is_cav: jnp.ndarray, coefficients: Sequence[float]
+    times: jnp.ndarray, is_cav: jnp.ndarray, coefficients: Sequence[float],
+    travelled: jnp.ndarray | None = None,
 ) -> jnp.ndarray:
-    """Reward of every agent as if it were a CAV (use it for CAVs); works batched [..., N]."""
+    """Reward of every agent as if it were a CAV (use it for CAVs); works batched [..., N].
+    `travelled` [..., N] (None: everyone): the group means cover those who travelled that day."""
     a, b, c, d = (float(v) for v in coefficients)
-    t_cav, t_hum, t_all = group_means(times, is_cav)
+    t_cav, t_hum, t_all = group_means(times, is_cav, travelled)
     shared = b * t_cav + c * t_hum + d * t_all
     return a * times + shared[..., None]
 

@@ -36,6 +36,7 @@ from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 from jaxmarl.environments.spaces import Box, Discrete
 
 from urb_jax.algorithms.networks import obs_scale
+from urb_jax.core.errors import ConfigError
 from urb_jax.game.env import EnvParams, EnvState, RoutingEnv
 from urb_jax.game.rollout import Policy
 
@@ -61,6 +62,10 @@ class JaxMARLRoutingEnv(MultiAgentEnv):
                              "build it with urb_jax.interop.outside.surrogate_env_from_run")
         if env.n_cavs == 0:
             raise ValueError("the env has no CAV: a JaxMARL env needs at least one agent")
+        if env.day_demand is not None:
+            raise ConfigError("task key 'day_participation' < 1: the JaxMARL env gives every CAV a turn "
+                              "every day and has no mask for the CAVs who stay home. Fix: set "
+                              "day_participation to 1 in the run's task config.")
         super().__init__(env.n_cavs)
         self.env = env
         self.params = env.default_params if params is None else params

@@ -54,7 +54,7 @@ def surrogate_env_from_run(run: str | Path) -> RunEnv:
     static = build_static(setup.scn)
     params = calibrate(uncalibrated(static), static, human, setup.hyb)
     is_cav = draw_cavs(env_seed, setup.scn.n_agents, setup.task.ratio_machines, agent_id=setup.scn.agent_id)
-    kwargs = routing_env_kwargs(setup.task, setup.env)
+    kwargs = routing_env_kwargs(setup.task, setup.env, env_seed)
     env = surrogate_env(setup.scn, is_cav, static, human.humans, params, kwargs)
     return RunEnv(env, setup, human, folder)
 

@@ -64,6 +64,10 @@ class _SumoDays:
                               "group rewards only: task key reward_credit 'marginal' and marginal_cost_beta "
                               "need the surrogate's derivative. Fix: use them with `urb-jax train` (hybrid "
                               "or surrogate mode), or set reward_credit 'group' and marginal_cost_beta 0.")
+        if self.task.varies_daily:
+            raise ConfigError(f"task key 'day_participation' = {self.task.day_participation}: the PettingZoo "
+                              "envs run URB's fixed demand (every driver every day). Fix: set "
+                              "day_participation to 1, or train with `urb-jax train`.")
         self.env_config = env_config or EnvConfig()
         self.env_seed = env_seed
         self._owns_executor = executor is None

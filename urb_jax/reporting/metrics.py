@@ -22,6 +22,8 @@ import math
 import numpy as np
 import pandas as pd
 
+from urb_jax.city.demand import ABSENT
+
 PRE_WINDOW = 50
 
 BENCHMARK_COLUMNS = [
@@ -174,7 +176,9 @@ def vector_metrics(records: pd.DataFrame, human_days: int, training_days: int) -
     days = act.index.to_numpy()
     s = slices(days, human_days, training_days)
     hdv, cav = groups(records)
-    changed = act.ne(act.shift(1)) & act.shift(1).notna()
+    if (act == ABSENT).to_numpy().any():  # stayed home (day_participation): no route, no change
+        act = act.where(act != ABSENT)
+    changed = act.ne(act.shift(1)) & act.shift(1).notna() & act.notna()
     pre_mean = tt.loc[s["pre"]].mean(axis=0) if len(s["pre"]) else pd.Series(np.nan, index=tt.columns)
     ds = day_stats(records)
     post = s["post"]

@@ -50,7 +50,8 @@ def plan_train(req: TrainRequest) -> TrainPlan:
         day_store_bytes()  # the SUMO day store's cap ($URB_JAX_DAY_STORE_GB)
     req = req.resolved()
     setup = load_setup(req)
-    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode)
+    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode,
+                   alg=req.alg, alg_config=setup.alg_config)
     if req.human_phase_from:
         _check_source(Path(req.results_dir), req.human_phase_from)
     return TrainPlan(req, setup, train_configs(req), _folders(req, setup))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
 
-from urb_jax.algorithms.registry import load_algo_config
+from urb_jax.algorithms.registry import canonical, load_algo_config
 from urb_jax.city.demand import scale_demand
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.choices import DEFAULT_NETWORK
@@ -100,11 +100,13 @@ def scenario_of(net: str | None, networks_dir: str | None, env_seed: int, env: E
                         jitter_s=task.demand_jitter_s)
 
 
-def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: bool, mode: str = "hybrid"
-                   ) -> None:
+def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: bool, mode: str = "hybrid",
+                   alg: str = "", alg_config: Any = None) -> None:
     """Refuse, before any SUMO day, a task whose URB metrics could not exist: no human day (t_pre),
-    no test day (t_CAV, t_test, WR), or, for training, no CAV to train; and a marginal credit
-    without a calibrated surrogate to take its derivative (baselines, `--mode sumo`)."""
+    no test day (t_CAV, t_test, WR), or, for training, no CAV to train; a marginal credit
+    without a calibrated surrogate to take its derivative (baselines, `--mode sumo`); demand varying
+    day to day where the run cannot honour it (`check_day_demand`, for `alg`)."""
+    check_day_demand(task, task_path, train=train, alg=canonical(alg) if alg else "", alg_config=alg_config)
     where = f"task config {task_path}"
     needs = task.surrogate_reward_keys
     if needs and (not train or mode == "sumo"):
@@ -126,6 +128,35 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
             "so there is nothing to train. Fix: set ratio_machines so that at least one agent is a CAV "
             f"(0.4 in URB's config1), or run the humans-only experiment with `urb-jax baseline "
             f"--task-conf {task_path}` (every day in SUMO).")
+
+
+# The learners whose losses leave out the CAVs that stayed home (Day.active), in their default
+# "days" frames; the others would learn from days their CAVs did not travel.
+DAY_DEMAND_ALGORITHMS = ("iql", "ippo", "mappo")
+
+
+def check_day_demand(task: TaskConfig, task_path: Path, *, train: bool, alg: str = "",
+                     alg_config: Any = None) -> None:
+    """Refuse, before any day, a run that cannot honour `day_participation` < 1 (demand varying
+    day to day): the baselines and other SUMO-only protocols (their days are not wired to it), a
+    learner that does not mask the CAVs who stayed home, and the marginal rewards (their model
+    derivative counts every driver)."""
+    if not task.varies_daily:
+        return
+    where = f"task config {task_path}: key 'day_participation' = {task.day_participation}"
+    if not train:
+        raise ConfigError(f"{where} (demand varying day to day) is supported by `urb-jax train` only; the "
+                          "baselines run URB's fixed demand. Fix: set day_participation to 1 for baselines.")
+    frames = getattr(alg_config, "frames", "days")
+    if alg not in DAY_DEMAND_ALGORITHMS or frames != "days":
+        raise ConfigError(f"{where}: algorithm '{alg}' (frames {frames!r}) does not leave the CAVs who "
+                          "stay home out of its loss. Fix: use one of "
+                          f"{', '.join(DAY_DEMAND_ALGORITHMS)} with frames 'days', or set day_participation "
+                          "to 1.")
+    if task.surrogate_reward_keys:
+        raise ConfigError(f"{where} with key(s) {', '.join(task.surrogate_reward_keys)}: the surrogate's "
+                          "marginal rewards count every driver, also those who stay home. Fix: set "
+                          "reward_credit 'group' and marginal_cost_beta 0, or day_participation to 1.")
 
 
 @contextlib.contextmanager

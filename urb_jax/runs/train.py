@@ -128,7 +128,8 @@ def run_train(req: TrainRequest, *, executor: DayExecutor | None = None, stop_af
     req = req.resolved()
     t0 = time.perf_counter()
     setup = load_setup(req)
-    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode)
+    check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode,
+                   alg=req.alg, alg_config=setup.alg_config)
     config = _train_config(setup, req)
     human = None  # checked before any results folder is created
 

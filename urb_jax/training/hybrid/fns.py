@@ -135,7 +135,8 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
         else:
             step = jax.vmap(real_env.step_with_times)
             next_obs, states, rewards, dones, info = step(keys, states, actions, times)
-        day = Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"])
+        day = Day(obs, actions, rewards, dones, next_obs, info["mean_time_cav"], info["mean_time_human"],
+                  info.get("active"))
         return states, jax.tree_util.tree_map(lambda x: x[None], day)  # [1, P, ...]
 
     @jax.jit

@@ -24,6 +24,7 @@ import numpy as np
 
 from urb_jax.algorithms.learner import Day
 from urb_jax.algorithms.registry import load_algo_config
+from urb_jax.city.demand import ABSENT
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.choices import MODES
 from urb_jax.core.configio import configs_dir
@@ -190,7 +191,7 @@ def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: in
     of the right shapes (a resume's checkpoint, or a dry run, replaces it)."""
     is_cav = draw_cavs(env_seed, scn.n_agents, task.ratio_machines, agent_id=scn.agent_id)
     static = build_static(scn)
-    env_kwargs = routing_env_kwargs(task, env_cfg)
+    env_kwargs = routing_env_kwargs(task, env_cfg, env_seed)
     if humans is None:
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid),
                              task.human_params())
@@ -224,11 +225,13 @@ def _slow_hint(alg: str, alg_config: AlgoConfig) -> str:
     return "Fewer --train-days, a smaller config or a GPU would shorten it"
 
 
-def routing_env_kwargs(task: TaskConfig, env_cfg: EnvConfig) -> dict[str, Any]:
-    """`RoutingEnv` keywords from the task and env configs (the same for surrogate and SUMO days)."""
+def routing_env_kwargs(task: TaskConfig, env_cfg: EnvConfig, env_seed: int) -> dict[str, Any]:
+    """`RoutingEnv` keywords from the task and env configs (the same for surrogate and SUMO days,
+    so both see the same drivers on a day of the same index: `day_demand` from the env seed)."""
     return dict(human_params=task.human_params(), reward_coefficients=task.reward_coefficients,
                 observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt,
-                reward_credit=task.reward_credit, marginal_cost_beta=task.marginal_cost_beta)
+                reward_credit=task.reward_credit, marginal_cost_beta=task.marginal_cost_beta,
+                day_demand=task.day_demand(env_seed))
 
 
 def surrogate_env(scn: Scenario, is_cav: np.ndarray, static: Static, humans: HumanState, params: Params,
@@ -652,6 +655,7 @@ def record_days(writer: RecordsWriter, first_day_minus1: int, phase: str, choice
         times = np.asarray(res.travel_time, dtype=np.float64)
         rew = -times.copy()
         rew[cav_index] = rewards[p]
+        rew[choices[p] == ABSENT] = np.nan  # stayed home (day_participation): no trip, no reward
         obs_all = np.full((choices.shape[1], obs.shape[-1]), np.nan, np.float32)
         obs_all[cav_index] = obs[p]
         writer.add(DayRecord(first_day_minus1 + p + 1, phase, choices[p], is_cav, res, rew, obs_all, True))
