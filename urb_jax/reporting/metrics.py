@@ -190,24 +190,38 @@ def vector_metrics(records: pd.DataFrame, human_days: int, training_days: int) -
 # ---- equity: what the CAVs did to each human (not a URB column; metrics/SocialMetrics.csv)
 
 SOCIAL_COLUMNS = ["humans_worse_off_share", "human_change_mean", "human_loss_max", "human_loss_gini"]
+# |change| at or below this (min; 6 ms) is a tie: the float32 records' rounding, never a real change.
+# SUMO steps whole seconds, so a real change of a human's mean is at least 1 s over the windows' days
+# (1 s / (50 x 100) = 0.2 ms for URB's windows, a real but meaningless change); rounding of float32
+# minutes stays below 1e-5 min for trips under an hour, and made identical days differ by that.
+TIE_MIN = 1e-4
 
 
 def social_metrics(records: pd.DataFrame, human_days: int, training_days: int) -> dict[str, float]:
     """How the CAVs' arrival spread over the humans, from SUMO days only. Each human's change is
     their mean travel time over the test days minus their own mean over the pre-CAV window (minutes;
-    removed trips skipped): the share of humans made worse off (change > 0), the mean change, the
-    largest individual loss, and the Gini coefficient of the losses (changes below 0 count as no loss;
-    0: nobody lost or all lost alike, towards 1: one human bears all the loss)."""
+    removed trips skipped; |change| <= TIE_MIN is a tie, 0): the share of humans made worse off
+    (change > 0), the mean change, the largest individual loss, and the Gini coefficient of the
+    losses (changes below 0 count as no loss; 0: nobody lost or all lost alike, towards 1: one human
+    bears all the loss)."""
+    change = human_changes(records, human_days, training_days)
+    if change.empty:
+        return dict.fromkeys(SOCIAL_COLUMNS, _nan())
+    tied = change.where(change.abs() > TIE_MIN, 0.0)
+    return {"humans_worse_off_share": float((tied > 0).mean()), "human_change_mean": float(change.mean()),
+            "human_loss_max": float(tied.max()), "human_loss_gini": gini(tied.clip(lower=0).to_numpy())}
+
+
+def human_changes(records: pd.DataFrame, human_days: int, training_days: int) -> pd.Series:
+    """[humans] each human's mean travel time over the test days minus their own mean over the
+    pre-CAV window (min; humans with no arrived trip in either left out); empty without humans,
+    pre-CAV or test days."""
     tt = _wide(records, "travel_time")
     s = slices(tt.index.to_numpy(), human_days, training_days)
     hdv, _ = groups(records)
     if len(s["pre"]) == 0 or len(s["test"]) == 0 or len(hdv) == 0:
-        return dict.fromkeys(SOCIAL_COLUMNS, _nan())
-    change = (tt.loc[s["test"], hdv].mean(axis=0) - tt.loc[s["pre"], hdv].mean(axis=0)).dropna()
-    if change.empty:
-        return dict.fromkeys(SOCIAL_COLUMNS, _nan())
-    return {"humans_worse_off_share": float((change > 0).mean()), "human_change_mean": float(change.mean()),
-            "human_loss_max": float(change.max()), "human_loss_gini": gini(change.clip(lower=0).to_numpy())}
+        return pd.Series(dtype=np.float64)
+    return (tt.loc[s["test"], hdv].mean(axis=0) - tt.loc[s["pre"], hdv].mean(axis=0)).dropna()
 
 
 def gini(x: np.ndarray) -> float:
