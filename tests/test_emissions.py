@@ -1,21 +1,37 @@
 """SUMO's emissions as first-class data: the SumoConfig option, the tripinfo parser, the day store's
-keys, and one real SUMO day against SUMO's own CLI run of the same day."""
+keys, the records' columns, the emission metrics (hand-computed), the refusal where no SUMO runs,
+and one real SUMO day against SUMO's own CLI run of the same day."""
 
 from __future__ import annotations
 
 import re
 import subprocess
+from functools import partial
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
 import pytest
+from support.fakeday import FakeExecutor
+from support.tiny_runs import tiny_iql_run
 
+from urb_jax.commands.cli import main
 from urb_jax.core.errors import ConfigError
 from urb_jax.reporting.day_export import day_routes_xml
+from urb_jax.reporting.metrics import (
+    EMISSION_SOCIAL_COLUMNS,
+    SOCIAL_COLUMNS,
+    emission_days,
+    emission_metrics,
+)
+from urb_jax.reporting.records import SCHEMA, DayRecord, RecordsWriter, write_run_metrics
+from urb_jax.runs import train as train_module
 from urb_jax.sumo_bridge import ARRIVED, SumoConfig, day_key, run_day
 from urb_jax.sumo_bridge.memo import load_day, save_day
 from urb_jax.sumo_bridge.tripinfo import parse_tripinfo
 from urb_jax.sumo_bridge.types import DayResult
+from urb_jax.training.human_phase import ReplayHumanPhase
 
 # Two trips as SUMO 1.28 writes them with the emission device (attributes shortened, and wrapped:
 # XML allows it), the second removed (vaporized) on the way: its emissions are those up to the removal.
@@ -98,10 +114,95 @@ def test_a_stored_day_keeps_its_emissions(tmp_path):
     assert load_day(tmp_path / "p.npz", "k").co2_g is None
 
 
+def test_records_get_the_columns_only_when_asked(tmp_path):
+    ids, od, dep = np.arange(2), np.zeros(2, np.int32), np.zeros(2, np.int32)
+    cav = np.array([False, True])
+
+    def write(folder: Path, emissions: bool, day) -> pd.DataFrame:
+        w = RecordsWriter(folder, ids, od, dep, emissions=emissions)
+        w.add(DayRecord(1, "human", np.zeros(2, int), cav, day, np.zeros(2), None))
+        return pq.read_table(w.close()).to_pandas()
+
+    plain = write(tmp_path / "a", False, _day(2, np.array([1.0, 2.0]), np.array([3.0, 4.0])))
+    assert list(plain.columns) == SCHEMA.names  # the device's numbers are not URB's columns
+    with_em = write(tmp_path / "b", True, _day(2, np.array([1.0, 2.0]), np.array([3.0, 4.0])))
+    assert list(with_em.columns) == [*SCHEMA.names, "co2_g", "fuel_mg"]
+    assert with_em["co2_g"].tolist() == [1.0, 2.0] and with_em["fuel_mg"].tolist() == [3.0, 4.0]
+    with pytest.raises(ValueError, match="day 1 has no emissions"):
+        write(tmp_path / "c", True, _day(2))
 
 
+def _emission_records() -> pd.DataFrame:
+    """Agents 0-2; agent 2 a CAV from day 3. H = 2 (days 1-2 pre-CAV), T = 1 (day 3), test days 4-5.
+    CO2 (g) = 100 x agent + day; fuel (mg) = 10 x CO2; agent 1 never inserted on day 5 (NaN)."""
+    rows = []
+    for d in range(1, 6):
+        for a in range(3):
+            co2 = np.nan if (a == 1 and d == 5) else 100.0 * a + d
+            rows.append({"day": d, "agent": a, "kind": "CAV" if (a == 2 and d > 2) else "HDV",
+                         "travel_time": 3.0, "co2_g": np.float32(co2), "fuel_mg": np.float32(10 * co2)})
+    return pd.DataFrame(rows)
 
 
+def test_emission_metrics_hand_computed():
+    per_day = emission_days(_emission_records()).set_index("episode")
+    # day 1: 1 + 101 + 201, all humans; day 4: humans 4 + 104, the CAV 204; day 5: 5 + (none) + 205
+    assert per_day.loc[1, "co2_g"] == 303.0 and per_day.loc[1, "co2_cav_g"] == 0.0
+    assert per_day.loc[4, "co2_human_g"] == 108.0 and per_day.loc[4, "co2_cav_g"] == 204.0
+    assert per_day.loc[5, "co2_g"] == 210.0 and per_day.loc[5, "fuel_human_mg"] == 50.0
+    m = emission_metrics(_emission_records(), 2, 1)
+    assert m["co2_test_g"] == 312.0 + 210.0
+    assert m["co2_test_human_g"] == 108.0 + 5.0 and m["co2_test_cav_g"] == 204.0 + 205.0
+    assert m["fuel_test_mg"] == 5220.0 and m["fuel_test_cav_mg"] == 4090.0
+    assert m["co2_pre_day_g"] == (303.0 + 306.0) / 2 and m["co2_test_day_g"] == (312.0 + 210.0) / 2
+    assert list(m) == EMISSION_SOCIAL_COLUMNS
+    assert np.isnan(emission_metrics(_emission_records(), 2, 3)["co2_test_g"])  # no test day
+
+
+def test_metric_files_keep_urbs_columns_and_bytes(tmp_path):
+    """The emission columns are appended to SocialMetrics.csv and EmissionMetrics.csv is added; URB's
+    two files are the bytes of the same run without emissions."""
+    full = _emission_records().assign(phase="x", od=0, start_time=0, action=0, route_length=1000.0,
+                                      speed=5.0, duration=178.0, time_loss=0.0, depart_delay=0.0, status=0,
+                                      reward=0.0, sumo=True)
+    for name, table in (("plain", full.drop(columns=["co2_g", "fuel_mg"])), ("emissions", full)):
+        (tmp_path / name).mkdir()
+        table.to_parquet(tmp_path / name / "records.parquet")
+        write_run_metrics(tmp_path / name, 2, 1)
+    plain, em = tmp_path / "plain" / "metrics", tmp_path / "emissions" / "metrics"
+    for urb in ("BenchmarkMetrics.csv", "VectorMetrics.csv"):
+        assert (plain / urb).read_bytes() == (em / urb).read_bytes()
+    assert not (plain / "EmissionMetrics.csv").exists()
+    assert pd.read_csv(plain / "SocialMetrics.csv").columns.tolist() == SOCIAL_COLUMNS
+    social = pd.read_csv(em / "SocialMetrics.csv")
+    assert social.columns.tolist() == [*SOCIAL_COLUMNS, *EMISSION_SOCIAL_COLUMNS]
+    assert social["co2_test_g"].item() == 522.0
+    assert pd.read_csv(em / "EmissionMetrics.csv")["co2_g"].tolist() == [303.0, 306.0, 309.0, 312.0, 210.0]
+
+
+def test_a_replayed_human_phase_carries_the_emissions():
+    rec = _emission_records().assign(action=0, route_length=1.0, speed=1.0, duration=1.0, time_loss=0.0,
+                                     depart_delay=0.0, status=0)
+    replay = ReplayHumanPhase(rec, np.arange(3), 2, FakeExecutor())
+    (day,) = replay.run_days(None, np.zeros((1, 3), np.int64), [1])
+    np.testing.assert_array_equal(day.co2_g, [1.0, 101.0, 201.0])
+    np.testing.assert_array_equal(day.fuel_mg, [10.0, 1010.0, 2010.0])
+
+
+def test_emissions_refused_where_no_sumo_runs_them(tmp_path, monkeypatch, capsys):
+    """A run given the stand-in executor (no SUMO) cannot record emissions: exit 2 with the hybrid
+    file, the key and the fix, before any results folder or day."""
+    confs = tiny_iql_run(tmp_path)
+    fake = FakeExecutor()
+    monkeypatch.setattr(train_module, "run_train", partial(train_module.run_train, executor=fake))
+    code = main(["train", "--alg", "iql", "--task-conf", confs["task_conf"], "--hybrid-conf",
+                 confs["hybrid_conf"], "--alg-conf", confs["alg_conf"], "--results-dir", str(tmp_path / "r"),
+                 "--no-progress", "--set", "hybrid.emissions=true"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"hybrid config {tmp_path / 'hyb.json'}: key 'emissions' is true" in err
+    assert "FakeExecutor" in err and "Fix: set 'emissions' false" in err
+    assert not fake.batches and not (tmp_path / "r").exists()
 
 
 def _cli_emissions(scn, choices, is_cav, seed, tmp: Path) -> dict[str, tuple[float, float]]:

@@ -233,3 +233,56 @@ def gini(x: np.ndarray) -> float:
         return 0.0
     return float(2.0 * np.sum(np.arange(1, n + 1) * v) / (n * total) - (n + 1) / n)
 
+
+# ---- emissions (runs with SUMO's emission device: records columns co2_g, fuel_mg)
+
+EMISSION_DAY_COLUMNS = ["episode", "co2_g", "co2_human_g", "co2_cav_g", "fuel_mg", "fuel_human_mg",
+                        "fuel_cav_mg"]
+EMISSION_SOCIAL_COLUMNS = ["co2_test_g", "co2_test_human_g", "co2_test_cav_g", "fuel_test_mg",
+                           "fuel_test_human_mg", "fuel_test_cav_mg", "co2_pre_day_g", "co2_test_day_g"]
+
+
+def has_emissions(records: pd.DataFrame) -> bool:
+    """Whether the run recorded SUMO's emissions (SumoConfig.emissions)."""
+    return "co2_g" in records.columns and "fuel_mg" in records.columns
+
+
+def emission_days(records: pd.DataFrame) -> pd.DataFrame:
+    """One row per recorded day (metrics/EmissionMetrics.csv): the day's totals over every vehicle,
+    the humans and the CAV fleet by their kind that day; CO2 in g, fuel in mg (SUMO's unit). A
+    vehicle SUMO never inserted has no value and adds nothing; a group without vehicles totals 0."""
+    rec = records.assign(co2_g=records["co2_g"].astype(np.float64),
+                         fuel_mg=records["fuel_mg"].astype(np.float64))
+    days = np.sort(rec["day"].unique())
+
+    def total(column: str, kind: str | None) -> np.ndarray:  # [days]
+        part = rec if kind is None else rec[rec["kind"] == kind]
+        return part.groupby("day")[column].sum().reindex(days, fill_value=0.0).to_numpy()
+
+    return pd.DataFrame({
+        "episode": days.astype(int),
+        "co2_g": total("co2_g", None), "co2_human_g": total("co2_g", "HDV"),
+        "co2_cav_g": total("co2_g", "CAV"),
+        "fuel_mg": total("fuel_mg", None), "fuel_human_mg": total("fuel_mg", "HDV"),
+        "fuel_cav_mg": total("fuel_mg", "CAV"),
+    })[EMISSION_DAY_COLUMNS]
+
+
+def emission_metrics(records: pd.DataFrame, human_days: int, training_days: int) -> dict[str, float]:
+    """The test phase's emission totals (sums over the test days of `emission_days`) by group, and the
+    mean daily CO2 of every vehicle over the pre-CAV window and over the test days (the CAVs' effect
+    on the day's emissions); NaN where the slice has no day."""
+    per_day = emission_days(records).set_index("episode")
+    s = slices(per_day.index.to_numpy(), human_days, training_days)
+    test, pre = per_day.loc[s["test"]], per_day.loc[s["pre"]]
+
+    def test_total(column: str) -> float:
+        return float(test[column].sum()) if len(test) else _nan()
+
+    return {
+        "co2_test_g": test_total("co2_g"), "co2_test_human_g": test_total("co2_human_g"),
+        "co2_test_cav_g": test_total("co2_cav_g"), "fuel_test_mg": test_total("fuel_mg"),
+        "fuel_test_human_mg": test_total("fuel_human_mg"), "fuel_test_cav_mg": test_total("fuel_cav_mg"),
+        "co2_pre_day_g": float(pre["co2_g"].mean()) if len(pre) else _nan(),
+        "co2_test_day_g": float(test["co2_g"].mean()) if len(test) else _nan(),
+    }
