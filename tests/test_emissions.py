@@ -14,10 +14,10 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 from support.fakeday import FakeExecutor
-from support.tiny_runs import tiny_iql_run
+from support.tiny_runs import tiny_iql_run, train_iql
 
 from urb_jax.commands.cli import main
-from urb_jax.core.errors import ConfigError
+from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.reporting.day_export import day_routes_xml
 from urb_jax.reporting.metrics import (
     EMISSION_SOCIAL_COLUMNS,
@@ -25,13 +25,13 @@ from urb_jax.reporting.metrics import (
     emission_days,
     emission_metrics,
 )
-from urb_jax.reporting.records import SCHEMA, DayRecord, RecordsWriter, write_run_metrics
+from urb_jax.reporting.records import SCHEMA, DayRecord, RecordsWriter, read_records, write_run_metrics
 from urb_jax.runs import train as train_module
-from urb_jax.sumo_bridge import ARRIVED, SumoConfig, day_key, run_day
+from urb_jax.sumo_bridge import ARRIVED, InProcessExecutor, SumoConfig, day_key, run_day
 from urb_jax.sumo_bridge.memo import load_day, save_day
 from urb_jax.sumo_bridge.tripinfo import parse_tripinfo
 from urb_jax.sumo_bridge.types import DayResult
-from urb_jax.training.human_phase import ReplayHumanPhase
+from urb_jax.training.human_phase import TRAIN_MUST_MATCH, ReplayHumanPhase, _checked_source
 
 # Two trips as SUMO 1.28 writes them with the emission device (attributes shortened, and wrapped:
 # XML allows it), the second removed (vaporized) on the way: its emissions are those up to the removal.
@@ -246,3 +246,47 @@ def test_a_real_day_with_emissions_matches_the_cli(grid_scenario, tmp_path):
     assert set(cli) == set(ids)
     np.testing.assert_allclose(day.co2_g, [cli[v][0] / 1000 for v in ids], rtol=0, atol=1e-9)
     np.testing.assert_allclose(day.fuel_mg, [cli[v][1] for v in ids], rtol=0, atol=1e-9)
+
+
+def test_a_reused_human_phase_must_match_the_emissions(tmp_path):
+    """A source run's human days carry emissions exactly when this run's do; a run from before the
+    key recorded none (off)."""
+    this = {k: 1 for k in TRAIN_MUST_MATCH} | {"hybrid_emissions": True}
+    (tmp_path / "exp_config.json").write_text(pd.Series(this | {"hybrid_emissions": False}).to_json())
+    with pytest.raises(UrbJaxError, match=r"hybrid_emissions \(source False, this run True\)"):
+        _checked_source(tmp_path, this, TRAIN_MUST_MATCH)
+    older = {k: v for k, v in this.items() if k != "hybrid_emissions"}
+    (tmp_path / "exp_config.json").write_text(pd.Series(older).to_json())
+    _checked_source(tmp_path, this | {"hybrid_emissions": False}, TRAIN_MUST_MATCH)
+
+
+@pytest.mark.sumo
+@pytest.mark.slow
+def test_a_real_run_with_emissions_keeps_urbs_files_and_reuses_its_human_phase(tmp_path):
+    """The tiny IQL run on urb_grid in SUMO, without and with emissions: URB's metric files are the same
+    bytes, the records the same plus co2_g and fuel_mg (positive for every arrived trip); a run reusing
+    its human phase replays the emissions, and one without emissions may not reuse it."""
+    confs = tiny_iql_run(tmp_path)
+
+    def train(exp_id: str, emissions: bool, **request):
+        ex = InProcessExecutor(SumoConfig(emissions=emissions))
+        try:
+            overrides = ("hybrid.emissions=true",) if emissions else ()
+            (out,) = train_iql(confs, tmp_path, exp_id, executor=ex, overrides=overrides, **request)
+        finally:
+            ex.close()
+        return out.folder
+
+    off, on = train("off", False), train("on", True)
+    for name in ("BenchmarkMetrics.csv", "VectorMetrics.csv"):
+        assert (on / "metrics" / name).read_bytes() == (off / "metrics" / name).read_bytes()
+    social = pd.read_csv(on / "metrics" / "SocialMetrics.csv")
+    pd.testing.assert_frame_equal(social[SOCIAL_COLUMNS], pd.read_csv(off / "metrics" / "SocialMetrics.csv"))
+    rec_on = read_records(on)
+    pd.testing.assert_frame_equal(rec_on.drop(columns=["co2_g", "fuel_mg"]), read_records(off))
+    arrived = rec_on["status"] == ARRIVED
+    assert (rec_on.loc[arrived, "co2_g"] > 0).all() and (rec_on.loc[arrived, "fuel_mg"] > 0).all()
+    again = train("again", True, human_phase_from="on")
+    pd.testing.assert_frame_equal(read_records(again), rec_on)
+    with pytest.raises(UrbJaxError, match="hybrid_emissions"):
+        train("without", False, human_phase_from="on")
