@@ -15,6 +15,10 @@ Semantics (see docs/sumo_bridge.md for the why):
   convention as an arrival) or `"urb"` (URB's fixed `simulation_timesteps / 60`).
 * `max_sim_time_s` is a hard cap: whatever is still driving (or waiting to be inserted) then is
   removed and charged like a stuck vehicle, so no day can run forever.
+* `emissions`: SUMO's emission device on every vehicle (`--device.emissions.probability 1`), with
+  SUMO's default emission class (HBEFA4/PC_petrol_Euro-4 in SUMO 1.28); each DayResult then carries
+  per-vehicle CO2 (g) and fuel (mg, SUMO's unit). Off by default: the device costs ~14% of a
+  saint_arnoult day's CPU time (benchmarks/emissions_cost.py; docs/sumo_bridge.md, "Emissions").
 """
 
 from __future__ import annotations
@@ -24,7 +28,10 @@ from typing import ClassVar
 
 from urb_jax.city.network import DAY_LIMIT_S
 from urb_jax.core.choices import STUCK_PENALTIES, STUCK_RULES
+from urb_jax.core.errors import ConfigError
 from urb_jax.core.ranges import Range, between, check_ranges
+
+EMISSION_DEVICE = ("--device.emissions.probability", "1")  # SUMO's emission device on every vehicle
 
 
 @dataclass(frozen=True)
@@ -38,6 +45,7 @@ class SumoConfig:
     additional_files: tuple[str, ...] = ()  # extra SUMO additional files (e.g. detectors, tests)
     extra_args: tuple[str, ...] = field(default=())  # appended to SUMO's command line
     shm_dir: str = "/dev/shm"  # where route and tripinfo files live (RAM); falls back to /tmp
+    emissions: bool = False  # per-vehicle CO2 and fuel from SUMO's emission device (DayResult.co2_g)
 
     RANGES: ClassVar[dict[str, Range]] = {
         "stuck_time_s": between(1, DAY_LIMIT_S), "tt_offset_s": between(0, 3600, "RouteRL: 2"),
@@ -52,6 +60,11 @@ class SumoConfig:
             raise ValueError(
                 f"SumoConfig.stuck_penalty={self.stuck_penalty!r}: use one of {STUCK_PENALTIES}"
             )
+        if not isinstance(self.emissions, bool):  # a truthy string would switch the device on
+            raise ConfigError(f"key 'emissions' is {self.emissions!r}. Fix: use true or false.")
+        if any(a.startswith("--device.emissions") for a in self.extra_args):
+            raise ConfigError("key 'extra_args' asks for SUMO's emission device itself. Fix: set "
+                              "'emissions' true instead (the days then carry CO2 and fuel).")
 
     def sumo_args(self, seed: int) -> list[str]:
         """Options shared by libsumo days and the one-shot CLI reference (besides files)."""
@@ -65,5 +78,6 @@ class SumoConfig:
             "--step-length", "1",
             "--no-step-log", "true",
             *teleport,
+            *(EMISSION_DEVICE if self.emissions else ()),
             *self.extra_args,
         ]

@@ -279,7 +279,7 @@ def _arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
 
 
 def save_day(path: str | os.PathLike, day: DayResult, key: str | None = None) -> None:
-    """One DayResult as an .npz of its fields (atomic; `leave_time` left out when None), with the
+    """One DayResult as an .npz of its fields (atomic; optional fields left out when None), with the
     sha256 of its arrays and, given, the day key it is stored under."""
     arrays = {f.name: np.asarray(getattr(day, f.name)) for f in dataclasses.fields(day)
               if getattr(day, f.name) is not None}
@@ -306,5 +306,6 @@ def load_day(path: str | os.PathLike, key: str | None = None) -> DayResult:
         stat_mean_route_length=float(a["stat_mean_route_length"]),
         stat_mean_duration=float(a["stat_mean_duration"]), teleports=int(a["teleports"]),
         n_removed=int(a["n_removed"]), sim_end_time=float(a["sim_end_time"]),
-        wall_time=float(a["wall_time"]), leave_time=a.get("leave_time"),
+        wall_time=float(a["wall_time"]), leave_time=a.get("leave_time"), co2_g=a.get("co2_g"),
+        fuel_mg=a.get("fuel_mg"),
     )

@@ -222,7 +222,23 @@ class Simulator:
             stat_mean_duration=float(np.mean(trip_dur[w])) if w.any() else 0.0,
             teleports=teleports, n_removed=int(out.sum()), sim_end_time=float(end_time),
             wall_time=float(wall), leave_time=leave,
+            **(_emissions(trips, pos) if cfg.emissions else {}),
         )
+
+
+def _emissions(trips: dict, pos: dict[str, int]) -> dict[str, np.ndarray]:
+    """co2_g and fuel_mg [N] from the tripinfo's emission children (SUMO gives mg of each); NaN for
+    a vehicle with no tripinfo (removed before SUMO inserted it). A tripinfo without the child
+    means the device did not run: an error, not a silent zero."""
+    co2, fuel = np.full(len(pos), np.nan), np.full(len(pos), np.nan)
+    for v, rec in trips.items():
+        i = pos.get(v)
+        if i is None:
+            continue
+        if "CO2_abs" not in rec:
+            raise RuntimeError(f"SumoConfig.emissions is on, but vehicle {v}'s tripinfo has no emissions")
+        co2[i], fuel[i] = rec["CO2_abs"] / 1000.0, rec["fuel_abs"]
+    return {"co2_g": co2, "fuel_mg": fuel}
 
 
 class _DaySteps:

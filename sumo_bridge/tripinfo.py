@@ -11,19 +11,26 @@ import numpy as np
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.atomic import write_text
 
-_TRIP = re.compile(r"<tripinfo\s([^>]*)>")
-_ATTR = re.compile(r'([A-Za-z]+)="([^"]*)"')
+# A <tripinfo> element and, with SUMO's emission device, the <emissions .../> child that follows it
+# (without the device the element closes itself and the next one starts: the group stays empty).
+_TRIP = re.compile(r"<tripinfo\s([^>]*)>(?:\s*<emissions\s([^>]*)/>)?")
+_ATTR = re.compile(r'([A-Za-z0-9_]+)="([^"]*)"')
 TRIP_FIELDS = ("depart", "departDelay", "arrival", "duration", "routeLength", "timeLoss")
+EMISSION_FIELDS = ("CO2_abs", "fuel_abs")  # mg each (SUMO's units: fuel in mg unless volumetric)
 
 
 def parse_tripinfo(path: str | os.PathLike) -> dict[str, dict[str, object]]:
-    """{vehicle id: {field: float, 'vaporized': str}} for every <tripinfo> element."""
+    """{vehicle id: {field: float, 'vaporized': str}} for every <tripinfo> element; with the emission
+    device also 'CO2_abs' and 'fuel_abs' (mg, the totals up to arrival or removal)."""
     text = Path(path).read_text()
     out: dict[str, dict[str, object]] = {}
     for m in _TRIP.finditer(text):
         attrs = dict(_ATTR.findall(m.group(1)))
         rec: dict[str, object] = {k: float(attrs[k]) for k in TRIP_FIELDS}
         rec["vaporized"] = attrs.get("vaporized", "")
+        if m.group(2) is not None:
+            emitted = dict(_ATTR.findall(m.group(2)))
+            rec.update({k: float(emitted[k]) for k in EMISSION_FIELDS})
         out[attrs["id"]] = rec
     return out
 

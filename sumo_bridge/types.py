@@ -39,6 +39,10 @@ class DayResult:
     sim_end_time: float  # s, SUMO time when the day ended
     wall_time: float  # s
     leave_time: np.ndarray | None = None  # [N] s, SUMO time of arrival or removal
+    # SumoConfig.emissions only (else None): SUMO's emission device, default emission class, totals
+    # up to arrival or removal; NaN for a vehicle SUMO never inserted (no tripinfo).
+    co2_g: np.ndarray | None = None  # [N] g of CO2
+    fuel_mg: np.ndarray | None = None  # [N] mg of fuel (SUMO's unit)
 
     def same_as(self, other: DayResult) -> bool:
         """Equal in everything SUMO decides (wall_time excluded); NaNs compare equal."""

@@ -50,7 +50,8 @@ def test_every_input_of_a_day_changes_its_key(grid_scenario, tmp_path, monkeypat
         "unknown simulator": day_key(scn, a, 42, None, SumoConfig(), None),
     }
     changed = {"stuck_rule": "routerl", "stuck_time_s": 601, "stuck_penalty": "urb", "tt_offset_s": 0,
-               "max_sim_time_s": 3600, "poll_every_s": 99, "extra_args": ("--lateral-resolution", "0.8")}
+               "max_sim_time_s": 3600, "poll_every_s": 99, "extra_args": ("--lateral-resolution", "0.8"),
+               "emissions": True}
     add = tmp_path / "add.xml"
     add.write_text("<additional/>\n")
     changed["additional_files"] = (str(add),)

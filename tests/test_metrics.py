@@ -122,3 +122,18 @@ def test_equity_over_the_humans_hand_computed():
     assert m["human_loss_gini"] == pytest.approx(8 / 18)
     assert gini(np.zeros(4)) == 0.0 and gini(np.array([0.0, 0.0, 0.0, 5.0])) == pytest.approx(0.75)
     assert math.isnan(social_metrics(_equity_records(), 2, 1)["human_loss_max"])  # no test day left
+
+
+def test_equity_ties_are_not_losses():
+    """Float32 minutes round: a human whose test days repeat their pre-CAV days in another order
+    (same seconds, same mean) differs by ~1e-7 min. Such a tie is no loss, and a real change of one
+    second is one. Humans (seconds per day, pre days 1-2 | test day 3): h0 (150, 162 | 156) a tie
+    (+2.4e-7 min in float32), h1 (180, 180 | 181) one second worse, h2 (200, 200 | 197) better."""
+    secs = {0: [150, 162, 156], 1: [180, 180, 181], 2: [200, 200, 197]}
+    rows = [{"day": d + 1, "agent": a, "travel_time": np.float32((t[d] + 2) / 60), "kind": "HDV"}
+            for a, t in secs.items() for d in range(3)]
+    m = social_metrics(pd.DataFrame(rows), 2, 0)
+    assert m["humans_worse_off_share"] == pytest.approx(1 / 3)
+    assert m["human_loss_max"] == pytest.approx(1 / 60, rel=1e-5)
+    assert m["human_loss_gini"] == pytest.approx(2 / 3)  # losses (0, 1 s, 0): one bears all
+    assert gini(np.array([1.0, 2.0, 3.0, 4.0])) == pytest.approx(0.25)  # sum |xi - xj| = 20, 2 n^2 mean = 80

@@ -194,24 +194,38 @@ def vector_metrics(records: pd.DataFrame, human_days: int, training_days: int) -
 # ---- equity: what the CAVs did to each human (not a URB column; metrics/SocialMetrics.csv)
 
 SOCIAL_COLUMNS = ["humans_worse_off_share", "human_change_mean", "human_loss_max", "human_loss_gini"]
+# |change| at or below this (min; 6 ms) is a tie: the float32 records' rounding, never a real change.
+# SUMO steps whole seconds, so a real change of a human's mean is at least 1 s over the windows' days
+# (1 s / (50 x 100) = 0.2 ms for URB's windows, a real but meaningless change); rounding of float32
+# minutes stays below 1e-5 min for trips under an hour, and made identical days differ by that.
+TIE_MIN = 1e-4
 
 
 def social_metrics(records: pd.DataFrame, human_days: int, training_days: int) -> dict[str, float]:
     """How the CAVs' arrival spread over the humans, from SUMO days only. Each human's change is
     their mean travel time over the test days minus their own mean over the pre-CAV window (minutes;
-    removed trips skipped): the share of humans made worse off (change > 0), the mean change, the
-    largest individual loss, and the Gini coefficient of the losses (changes below 0 count as no loss;
-    0: nobody lost or all lost alike, towards 1: one human bears all the loss)."""
+    removed trips skipped; |change| <= TIE_MIN is a tie, 0): the share of humans made worse off
+    (change > 0), the mean change, the largest individual loss, and the Gini coefficient of the
+    losses (changes below 0 count as no loss; 0: nobody lost or all lost alike, towards 1: one human
+    bears all the loss)."""
+    change = human_changes(records, human_days, training_days)
+    if change.empty:
+        return dict.fromkeys(SOCIAL_COLUMNS, _nan())
+    tied = change.where(change.abs() > TIE_MIN, 0.0)
+    return {"humans_worse_off_share": float((tied > 0).mean()), "human_change_mean": float(change.mean()),
+            "human_loss_max": float(tied.max()), "human_loss_gini": gini(tied.clip(lower=0).to_numpy())}
+
+
+def human_changes(records: pd.DataFrame, human_days: int, training_days: int) -> pd.Series:
+    """[humans] each human's mean travel time over the test days minus their own mean over the
+    pre-CAV window (min; humans with no arrived trip in either left out); empty without humans,
+    pre-CAV or test days."""
     tt = _wide(records, "travel_time")
     s = slices(tt.index.to_numpy(), human_days, training_days)
     hdv, _ = groups(records)
     if len(s["pre"]) == 0 or len(s["test"]) == 0 or len(hdv) == 0:
-        return dict.fromkeys(SOCIAL_COLUMNS, _nan())
-    change = (tt.loc[s["test"], hdv].mean(axis=0) - tt.loc[s["pre"], hdv].mean(axis=0)).dropna()
-    if change.empty:
-        return dict.fromkeys(SOCIAL_COLUMNS, _nan())
-    return {"humans_worse_off_share": float((change > 0).mean()), "human_change_mean": float(change.mean()),
-            "human_loss_max": float(change.max()), "human_loss_gini": gini(change.clip(lower=0).to_numpy())}
+        return pd.Series(dtype=np.float64)
+    return (tt.loc[s["test"], hdv].mean(axis=0) - tt.loc[s["pre"], hdv].mean(axis=0)).dropna()
 
 
 def gini(x: np.ndarray) -> float:
@@ -223,3 +237,56 @@ def gini(x: np.ndarray) -> float:
         return 0.0
     return float(2.0 * np.sum(np.arange(1, n + 1) * v) / (n * total) - (n + 1) / n)
 
+
+# ---- emissions (runs with SUMO's emission device: records columns co2_g, fuel_mg)
+
+EMISSION_DAY_COLUMNS = ["episode", "co2_g", "co2_human_g", "co2_cav_g", "fuel_mg", "fuel_human_mg",
+                        "fuel_cav_mg"]
+EMISSION_SOCIAL_COLUMNS = ["co2_test_g", "co2_test_human_g", "co2_test_cav_g", "fuel_test_mg",
+                           "fuel_test_human_mg", "fuel_test_cav_mg", "co2_pre_day_g", "co2_test_day_g"]
+
+
+def has_emissions(records: pd.DataFrame) -> bool:
+    """Whether the run recorded SUMO's emissions (SumoConfig.emissions)."""
+    return "co2_g" in records.columns and "fuel_mg" in records.columns
+
+
+def emission_days(records: pd.DataFrame) -> pd.DataFrame:
+    """One row per recorded day (metrics/EmissionMetrics.csv): the day's totals over every vehicle,
+    the humans and the CAV fleet by their kind that day; CO2 in g, fuel in mg (SUMO's unit). A
+    vehicle SUMO never inserted has no value and adds nothing; a group without vehicles totals 0."""
+    rec = records.assign(co2_g=records["co2_g"].astype(np.float64),
+                         fuel_mg=records["fuel_mg"].astype(np.float64))
+    days = np.sort(rec["day"].unique())
+
+    def total(column: str, kind: str | None) -> np.ndarray:  # [days]
+        part = rec if kind is None else rec[rec["kind"] == kind]
+        return part.groupby("day")[column].sum().reindex(days, fill_value=0.0).to_numpy()
+
+    return pd.DataFrame({
+        "episode": days.astype(int),
+        "co2_g": total("co2_g", None), "co2_human_g": total("co2_g", "HDV"),
+        "co2_cav_g": total("co2_g", "CAV"),
+        "fuel_mg": total("fuel_mg", None), "fuel_human_mg": total("fuel_mg", "HDV"),
+        "fuel_cav_mg": total("fuel_mg", "CAV"),
+    })[EMISSION_DAY_COLUMNS]
+
+
+def emission_metrics(records: pd.DataFrame, human_days: int, training_days: int) -> dict[str, float]:
+    """The test phase's emission totals (sums over the test days of `emission_days`) by group, and the
+    mean daily CO2 of every vehicle over the pre-CAV window and over the test days (the CAVs' effect
+    on the day's emissions); NaN where the slice has no day."""
+    per_day = emission_days(records).set_index("episode")
+    s = slices(per_day.index.to_numpy(), human_days, training_days)
+    test, pre = per_day.loc[s["test"]], per_day.loc[s["pre"]]
+
+    def test_total(column: str) -> float:
+        return float(test[column].sum()) if len(test) else _nan()
+
+    return {
+        "co2_test_g": test_total("co2_g"), "co2_test_human_g": test_total("co2_human_g"),
+        "co2_test_cav_g": test_total("co2_cav_g"), "fuel_test_mg": test_total("fuel_mg"),
+        "fuel_test_human_mg": test_total("fuel_human_mg"), "fuel_test_cav_mg": test_total("fuel_cav_mg"),
+        "co2_pre_day_g": float(pre["co2_g"].mean()) if len(pre) else _nan(),
+        "co2_test_day_g": float(test["co2_g"].mean()) if len(test) else _nan(),
+    }

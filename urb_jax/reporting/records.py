@@ -31,7 +31,16 @@ from urb_jax.core.atomic import atomic_path, file_sha256, write_bytes
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.paths import absolute_dir
 from urb_jax.reporting.comparable import comparable_metrics, is_hybrid
-from urb_jax.reporting.metrics import SOCIAL_COLUMNS, compute_metrics, social_metrics, vector_metrics
+from urb_jax.reporting.metrics import (
+    EMISSION_SOCIAL_COLUMNS,
+    SOCIAL_COLUMNS,
+    compute_metrics,
+    emission_days,
+    emission_metrics,
+    has_emissions,
+    social_metrics,
+    vector_metrics,
+)
 from urb_jax.sumo_bridge.types import DayResult
 
 
@@ -121,14 +130,20 @@ SCHEMA = pa.schema([
     ("status", pa.int8()), ("reward", pa.float32()), ("observation", pa.list_(pa.float32())),
     ("sumo", pa.bool_()),
 ])
+# SumoConfig.emissions runs only: appended after URB's columns, so a run without keeps its bytes.
+EMISSION_COLUMNS = ("co2_g", "fuel_mg")  # DayResult fields of the same names: g, mg (SUMO's unit)
+EMISSION_SCHEMA = pa.schema([*SCHEMA, *(pa.field(c, pa.float32()) for c in EMISSION_COLUMNS)])
 
 
 class RecordsWriter:
-    """Collects DayRecords and flushes Parquet parts every `flush_every` days."""
+    """Collects DayRecords and flushes Parquet parts every `flush_every` days. `emissions`: the run's
+    SUMO days carry emissions (SumoConfig.emissions); the records get `EMISSION_COLUMNS` too."""
 
     def __init__(self, folder: str | os.PathLike, agent_id: np.ndarray, agent_od: np.ndarray,
-                 agent_depart: np.ndarray, flush_every: int = 25) -> None:
+                 agent_depart: np.ndarray, flush_every: int = 25, emissions: bool = False) -> None:
         self.folder = Path(folder)
+        self.emissions = emissions
+        self.schema = EMISSION_SCHEMA if emissions else SCHEMA
         self.parts = self.folder / PARTS_DIR
         self.parts.mkdir(parents=True, exist_ok=True)
         self.agent_id = np.asarray(agent_id, dtype=np.int64)
@@ -177,15 +192,24 @@ class RecordsWriter:
               ("travel_time", "route_length", "mean_speed", "duration", "time_loss", "depart_delay")),
             pa.array(np.asarray(r.status, np.int8)), pa.array(np.asarray(rec.rewards, np.float32)),
             obs, pa.array(np.full(n, rec.sumo)),
+            *(self._emission_columns(rec) if self.emissions else ()),
         ]
-        self._pending.append(pa.RecordBatch.from_arrays(cols, schema=SCHEMA))
+        self._pending.append(pa.RecordBatch.from_arrays(cols, schema=self.schema))
         if len(self._pending) >= self.flush_every:
             self.flush()
+
+    @staticmethod
+    def _emission_columns(rec: DayRecord) -> list[pa.Array]:
+        """co2_g, fuel_mg [N]; a day without them in a run with them is a bug, not a NaN column."""
+        r = rec.result
+        if r.co2_g is None or r.fuel_mg is None:
+            raise ValueError(f"day {rec.day} has no emissions, but the run records them")
+        return [pa.array(np.asarray(r.co2_g, np.float32)), pa.array(np.asarray(r.fuel_mg, np.float32))]
 
     def flush(self) -> None:
         if not self._pending:
             return
-        table = pa.Table.from_batches(self._pending, schema=SCHEMA)
+        table = pa.Table.from_batches(self._pending, schema=self.schema)
         write_with_digest(part_path(self.parts, self._n_parts),
                           lambda tmp: pq.write_table(table, tmp, compression="zstd"))
         self._n_parts += 1
@@ -208,9 +232,9 @@ class RecordsWriter:
         parts = [part_path(self.parts, i) for i in range(n)]
 
         def merge(tmp: Path) -> None:
-            with pq.ParquetWriter(tmp, SCHEMA, compression="zstd") as writer:
+            with pq.ParquetWriter(tmp, self.schema, compression="zstd") as writer:
                 for p in parts:
-                    writer.write_table(pq.read_table(p, schema=SCHEMA))
+                    writer.write_table(pq.read_table(p, schema=self.schema))
 
         write_with_digest(target, merge)
         return target
@@ -306,7 +330,8 @@ def run_metrics(folder: str | os.PathLike) -> dict[str, float]:
 def write_run_metrics(folder: Path, human_days: int, training_days: int,
                       hybrid: bool = False) -> tuple[dict[str, float], pd.DataFrame]:
     """A run's metric files (metrics/BenchmarkMetrics.csv, VectorMetrics.csv, and SocialMetrics.csv
-    beside URB's: equity over the humans, atomically) from its records: every run's last step, and
+    beside URB's: equity over the humans, with the emission totals and EmissionMetrics.csv where the
+    run recorded emissions; atomically) from its records: every run's last step, and
     what `urb-jax metrics` redoes. A `hybrid` run's columns that cover its SUMO training days only
     go under their own names (`comparable.comparable_metrics`). Returns the metrics and the records."""
     records = _checked_records(folder)
@@ -315,10 +340,16 @@ def write_run_metrics(folder: Path, human_days: int, training_days: int,
     out = Path(folder) / "metrics"
     # every file computed before any is written: a failure leaves the metric files as they were
     vector = vector_metrics(records, human_days, training_days)
-    social = pd.DataFrame([social_metrics(records, human_days, training_days)])[SOCIAL_COLUMNS]
+    social_row = social_metrics(records, human_days, training_days)
+    social_columns = list(SOCIAL_COLUMNS)
     files = {"BenchmarkMetrics.csv": pd.DataFrame([metrics]).to_csv(index=False).encode(),
-             "VectorMetrics.csv": vector.to_csv(index=False).encode(),
-             "SocialMetrics.csv": social.to_csv(index=False).encode()}
+             "VectorMetrics.csv": vector.to_csv(index=False).encode()}
+    if has_emissions(records):  # a run without keeps exactly its files
+        social_row |= emission_metrics(records, human_days, training_days)
+        social_columns += EMISSION_SOCIAL_COLUMNS
+        files["EmissionMetrics.csv"] = emission_days(records).to_csv(index=False).encode()
+    social = pd.DataFrame([social_row])[social_columns]
+    files["SocialMetrics.csv"] = social.to_csv(index=False).encode()
     out.mkdir(parents=True, exist_ok=True)
     for name, data in files.items():
         write_bytes(out / name, data)

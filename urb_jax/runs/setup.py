@@ -33,6 +33,7 @@ from urb_jax.runs.request import TrainRequest
 from urb_jax.runs.urb_configs import (
     run_overrides,
 )
+from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.training.checkpoints import latest_checkpoint
 from urb_jax.training.hybrid.plan import AlgoConfig, HybridConfig, load_hybrid_config
 from urb_jax.training.hybrid.trainer import TrainSummary
@@ -157,6 +158,23 @@ def check_day_demand(task: TaskConfig, task_path: Path, *, train: bool, alg: str
         raise ConfigError(f"{where} with key(s) {', '.join(task.surrogate_reward_keys)}: the surrogate's "
                           "marginal rewards count every driver, also those who stay home. Fix: set "
                           "reward_credit 'group' and marginal_cost_beta 0, or day_participation to 1.")
+
+
+def check_emission_source(setup: TrainSetup, executor: object | None) -> None:
+    """A run asking for emissions (hybrid key 'emissions') whose SUMO days come from a given executor
+    (a suite's, an API caller's, a test's stand-in) needs one that runs SUMO's emission device: its
+    days would otherwise reach the records without CO2 and fuel, so it is refused before any day.
+    An executor the run makes itself is made with the device (`HybridConfig.sumo_config`)."""
+    if not setup.hyb.emissions or executor is None:
+        return
+    config = getattr(executor, "config", None)
+    if isinstance(config, SumoConfig) and config.emissions:
+        return
+    runs = f"with {config!r}" if isinstance(config, SumoConfig) else "without SUMO (no SumoConfig)"
+    raise ConfigError(f"hybrid config {setup.hyb_path}: key 'emissions' is true, but this run's days come "
+                      f"from the {type(executor).__name__} it was given, which runs {runs}: no day would "
+                      "carry CO2 or fuel. Fix: set 'emissions' false (or drop --set hybrid.emissions), or "
+                      "give an executor built with SumoConfig(emissions=True), or none (the run makes one).")
 
 
 @contextlib.contextmanager

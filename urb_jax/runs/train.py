@@ -48,6 +48,7 @@ from urb_jax.runs.run_log import log_run_to, with_run_log
 from urb_jax.runs.setup import (
     RunResult,
     TrainSetup,
+    check_emission_source,
     check_recorded_configs,
     check_runnable,
     experiment_config,
@@ -63,7 +64,7 @@ from urb_jax.runs.urb_configs import (
     run_overrides,
     train_override_record,
 )
-from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoConfig, SumoPool
+from urb_jax.sumo_bridge import DayExecutor, InProcessExecutor, SumoPool
 from urb_jax.sumo_bridge.memo import LazyExecutor, day_store
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
 from urb_jax.training.checkpoints import checkpoint_meta, latest_checkpoint
@@ -86,12 +87,13 @@ def make_executor(hyb: HybridConfig, log_dir: Path, kind: str = "pool",
                   ray_address: str | None = None) -> DayExecutor:
     """Where a train run's SUMO days run: `ray` actors, or local processes (`pool`; in-process for
     one worker); SUMO's logs go to `log_dir`."""
+    config = hyb.sumo_config
     if kind == "ray":
-        return RayExecutor(max(1, hyb.sumo_workers), log_dir=log_dir, day_timeout_s=hyb.day_timeout_s,
+        return RayExecutor(max(1, hyb.sumo_workers), config, log_dir=log_dir, day_timeout_s=hyb.day_timeout_s,
                            address=ray_address)
     if hyb.sumo_workers <= 1:
-        return InProcessExecutor(log_file=log_dir / "sumo.log")
-    return SumoPool(hyb.sumo_workers, log_dir=log_dir, day_timeout_s=hyb.day_timeout_s)
+        return InProcessExecutor(config, log_file=log_dir / "sumo.log")
+    return SumoPool(hyb.sumo_workers, config, log_dir=log_dir, day_timeout_s=hyb.day_timeout_s)
 
 
 @contextlib.contextmanager
@@ -106,7 +108,7 @@ def _executor(given: DayExecutor | None, hyb: HybridConfig, log_dir: Path, kind:
     def make() -> DayExecutor:
         return make_executor(hyb, log_dir, kind, ray_address)
 
-    executor = LazyExecutor(make, SumoConfig()) if stored and day_store_bytes() else make()
+    executor = LazyExecutor(make, hyb.sumo_config) if stored and day_store_bytes() else make()
     try:
         yield day_store(executor, stored)
     finally:
@@ -130,6 +132,7 @@ def run_train(req: TrainRequest, *, executor: DayExecutor | None = None, stop_af
     setup = load_setup(req)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode,
                    alg=req.alg, alg_config=setup.alg_config)
+    check_emission_source(setup, executor)
     config = _train_config(setup, req)
     human = None  # checked before any results folder is created
 
@@ -231,6 +234,7 @@ def _resume_group(group: list[str], resume: ResumeRequest, executor: DayExecutor
     req, setup = recorded_setup(configs, **now)
     check_run_network(folders[0] / CONFIG_FILE, configs[0], setup.scn.n_agents, setup.scn.net_file)
     check_recorded_configs(folders[0] / CONFIG_FILE, configs[0], setup, ignore=RECORD_OWN_KEYS)
+    check_emission_source(setup, executor)
     with stops_cleanly(folders), \
             _executor(executor, setup.hyb, folders[0], req.executor, req.ray_address, resume.day_store) as ex:
         elapsed = _wall_clock(_wall_before(folders[0], configs))

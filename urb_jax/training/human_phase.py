@@ -42,7 +42,7 @@ from urb_jax.core.progress import Progress
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.humans import HumanState
 from urb_jax.reporting.metrics import PRE_WINDOW
-from urb_jax.reporting.records import DayRecord, read_records
+from urb_jax.reporting.records import EMISSION_COLUMNS, DayRecord, read_records
 from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, MemoExecutor
 from urb_jax.sumo_bridge.batch import as_batch
 from urb_jax.surrogate import build_static, init_params, predict
@@ -61,10 +61,12 @@ MUST_MATCH = ("network", "env_seed", "human_model", "human_alpha", "human_beta",
               "demand_scale", "demand_mode", "demand_jitter_s", "number_of_paths", "path_gen_beta",
               "num_samples", "num_agents")
 # A train run's also: the phase's length and the calibration days it recorded.
+# hybrid_emissions: the reused days' records must carry emissions exactly when this run's do
 TRAIN_MUST_MATCH = (*MUST_MATCH, "human_learning_episodes", "hybrid_calib_human_days",
-                    "hybrid_calib_varied_days", "human_surrogate_days")
+                    "hybrid_calib_varied_days", "human_surrogate_days", "hybrid_emissions")
 SURROGATE_KEY = "human_surrogate_days"  # exp_config.json: leading human days run on the surrogate
-ABSENT = {SURROGATE_KEY: 0}  # what a key missing from an older run's exp_config.json meant
+# what a key missing from an older run's exp_config.json meant
+ABSENT = {SURROGATE_KEY: 0, "hybrid_emissions": False}
 # The record columns a replay returns (a DayResult's fields, `action` checked against today's choices).
 FIELDS = ("action", "travel_time", "route_length", "speed", "duration", "time_loss", "depart_delay", "status")
 
@@ -197,7 +199,7 @@ class ReplayHumanPhase:
             raise UrbJaxError(f"human phase replay needs days {first_day}..{days}; the source run has "
                               f"{len(have)} of them.")
         self._wide = {f: rec.pivot(index="day", columns="agent", values=f).reindex(columns=agent_id)
-                      for f in FIELDS}
+                      for f in rec.columns if f not in ("day", "agent")}  # FIELDS and any emissions
         if self._wide["action"].isna().any().any():
             raise UrbJaxError("human phase replay: the source run's agents differ from this scenario's.")
 
@@ -222,7 +224,7 @@ class ReplayHumanPhase:
         d = self.calls
         if is_cav is not None and np.asarray(is_cav).any():
             raise UrbJaxError(f"human phase replay: day {d} has CAVs.")
-        row = {f: self._wide[f].loc[d].to_numpy() for f in FIELDS}
+        row = {f: wide.loc[d].to_numpy() for f, wide in self._wide.items()}
         recorded = row["action"].astype(np.int64)
         if not np.array_equal(np.asarray(choices, np.int64), recorded):
             bad = int((np.asarray(choices) != recorded).sum())
@@ -242,6 +244,7 @@ def _day_result(row: dict[str, np.ndarray], seed: int) -> DayResult:
         stat_mean_route_length=_mean(f64["route_length"], arrived),
         stat_mean_duration=_mean(f64["duration"], arrived),
         teleports=0, n_removed=int((~arrived).sum()), sim_end_time=float("nan"), wall_time=0.0,
+        **{c: row[c].astype(np.float64) for c in EMISSION_COLUMNS if c in row},
     )
 
 
@@ -265,10 +268,11 @@ def _checked_source(source: Path, config: dict[str, Any], keys: tuple[str, ...])
     return src
 
 
-def _replay(source: Path, agent_id: np.ndarray, days: int, inner: DayExecutor, first_day: int = 1
-            ) -> ReplayHumanPhase:
-    return ReplayHumanPhase(read_records(source, columns=["day", "agent", *FIELDS]), agent_id, days, inner,
-                            first_day)
+def _replay(source: Path, agent_id: np.ndarray, days: int, inner: DayExecutor, first_day: int = 1,
+            emissions: bool = False) -> ReplayHumanPhase:
+    """The replay of `source`'s days; `emissions`: with their CO2 and fuel (the source recorded them)."""
+    columns = ["day", "agent", *FIELDS, *(EMISSION_COLUMNS if emissions else ())]
+    return ReplayHumanPhase(read_records(source, columns=columns), agent_id, days, inner, first_day)
 
 
 def load_replay(source: Path, config: dict[str, Any], agent_id: np.ndarray, days: int,
@@ -304,7 +308,8 @@ def reuse_human_phase(source: Path, config: dict[str, Any], scn: Scenario, task:
     calib = _calibration_days(z, path, cfg, calibrate)
     S = int(src.get(SURROGATE_KEY, 0))
     switch = _saved_humans(z, "switch") if S else None
-    replay = _replay(source, scn.agent_id, task.human_learning_episodes, _NoMoreDays(), first_day=S + 1)
+    replay = _replay(source, scn.agent_id, task.human_learning_episodes, _NoMoreDays(), first_day=S + 1,
+                     emissions=cfg.emissions)
     records: list[DayRecord] = []
     humans = train_humans(scn, task.human_params(), task.human_learning_episodes, env_seed=env_seed,
                           executor=replay, sink=records.append, first_day=S + 1, humans=switch)

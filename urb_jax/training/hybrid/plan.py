@@ -16,6 +16,7 @@ from urb_jax.core.configio import Loaded, Override, find_config, load_resolved
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.ranges import DAYS, ENVS, STEPS, WORKERS, Range, above, between, check_ranges
 from urb_jax.game.env import RoutingEnv
+from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.surrogate.calibrate import ROUTE_BIAS_PRIOR_DAYS
 
 SEED_AXES = ("auto", "vmap", "map")  # how a group's seeds share one program (hybrid/fns.py)
@@ -53,6 +54,9 @@ class HybridConfig:
     # snapshots of the learning curve, each evaluable later on the run's SUMO test days (a day count
     # between rounds keeps the first round that reaches it; 0 keeps the start, the human phase's end).
     keep_checkpoints_at: tuple[int, ...] = ()
+    # SUMO's emission device on every SUMO day (SumoConfig.emissions): records get co2_g and fuel_mg,
+    # the metric files the emission totals (docs/metrics.md, "Emissions"). Off: a day costs ~10% less.
+    emissions: bool = False
 
     RANGES: ClassVar[dict[str, Range]] = {
         "train_days": between(1, DAYS), "num_envs": between(1, ENVS),
@@ -74,6 +78,11 @@ class HybridConfig:
         if self.seed_axis not in SEED_AXES:
             raise ConfigError(f"key 'seed_axis' is {self.seed_axis!r}. Fix: use one of "
                               f"{', '.join(SEED_AXES)}.")
+
+    @property
+    def sumo_config(self) -> SumoConfig:
+        """The SumoConfig this run's SUMO days run with (the day store keys on it)."""
+        return SumoConfig(emissions=self.emissions)
 
     @property
     def bias_prior(self) -> float | None:

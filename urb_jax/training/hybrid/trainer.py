@@ -530,8 +530,8 @@ def train_group(
     `elapsed()`: the group's wall seconds so far, earlier processes' included, kept in each checkpoint."""
     g = setup_group(scn, task, env_cfg, alg, alg_config, cfg, mode, seeds, env_seed, folders,
                     human.humans if human is not None else None)
-    writers = [RecordsWriter(f, scn.agent_id, scn.agent_od, scn.agent_depart, flush_every=10**9)
-               for f in folders]
+    writers = [RecordsWriter(f, scn.agent_id, scn.agent_od, scn.agent_depart, flush_every=10**9,
+                             emissions=cfg.emissions) for f in folders]
     plan, per_round = g.plan, g.plan.surrogate_days + g.plan.sumo_days
     bar = Progress(g.S * (g.H + plan.n_rounds * per_round + g.E), progress)
     g.clock.note = bar.note
