@@ -272,3 +272,47 @@ def test_a_checkpoint_save_that_does_not_finish_is_an_error_not_a_hang(tmp_path)
     assert time.perf_counter() - t0 < 5
     with pytest.raises(OSError, match="disk"):  # the wait's own error comes through
         wait_bounded(lambda: (_ for _ in ()).throw(OSError("disk")), 5, tmp_path)
+
+
+# --- exp_config.json's digest ----------------------------------------------------------------------
+
+
+def test_exp_config_carries_the_sha256_of_its_canonical_content(tmp_path):
+    import hashlib
+    import json
+
+    from urb_jax.core.atomic import JSON_DIGEST_KEY
+    from urb_jax.runs.folder import read_run_config, write_config
+
+    write_config(tmp_path, {"status": "running", "seeds": (1, 2), "lr": np.float32(0.5)})
+    recorded = json.loads((tmp_path / "exp_config.json").read_text())
+    by_hand = hashlib.sha256(b'{"lr":0.5,"seeds":[1,2],"status":"running"}').hexdigest()
+    assert recorded[JSON_DIGEST_KEY] == by_hand
+    assert read_run_config(tmp_path) == {"status": "running", "seeds": [1, 2], "lr": 0.5}
+    # indentation and key order are no content: the same record, written otherwise, still reads
+    (tmp_path / "exp_config.json").write_text(json.dumps(dict(reversed(recorded.items()))))
+    assert read_run_config(tmp_path)["seeds"] == [1, 2]
+    # a record from before digests reads as it is
+    (tmp_path / "exp_config.json").write_text(json.dumps({"status": "running"}))
+    assert read_run_config(tmp_path) == {"status": "running"}
+
+
+def test_an_exp_config_that_is_not_its_digest_is_refused_by_every_reader(tmp_path, capsys):
+    import json
+
+    from urb_jax.commands.cli import main
+    from urb_jax.reporting.records import run_config
+    from urb_jax.runs.folder import read_run_config, read_train_config, write_config
+
+    folder = tmp_path / "r"
+    write_config(folder, {"status": "running", "train_args": {"seed": 0}, "env_seed": 42})
+    path = folder / "exp_config.json"
+    path.write_text(path.read_text().replace('"env_seed": 42', '"env_seed": 43'))
+    for read in (read_run_config, read_train_config, run_config):
+        with pytest.raises(UrbJaxError, match=r"exp_config.json: its content does not match the sha256 "
+                                              r"recorded in it \('content_sha256' .*Fix: undo the edit"):
+            read(folder)
+    assert main(["train", "--resume", "r", "--results-dir", str(tmp_path), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"urb-jax: error: {path}: its content does not match" in err and "--overwrite" in err
+    assert json.loads(path.read_text())["env_seed"] == 43  # nothing rewritten
