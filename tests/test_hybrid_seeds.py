@@ -198,6 +198,24 @@ def test_human_phase_reuse_refuses_a_different_phase(confs, tmp_path):
 
 
 @pytest.mark.slow
+def test_a_resume_refuses_an_algorithm_config_edited_since_the_start(confs, tmp_path):
+    """The algorithm config file a run started with, edited before its resume: refused naming
+    alg.<key> with the value recorded and the value read now, before any SUMO day."""
+    (killed,) = _train(confs, tmp_path, "alg_edit", FakeExecutor(), seeds=[0], stop_after_round=1)
+    alg = Path(confs["alg_conf"])
+    original = alg.read_text()
+    try:
+        alg.write_text(json.dumps(json.loads(original) | {"num_epochs": 2}))
+        ex = FakeExecutor()
+        req = ResumeRequest(killed.folder.name, results_dir=str(tmp_path), progress=False)
+        with pytest.raises(UrbJaxError, match=r"changed since it started \('alg.num_epochs' was 1, now 2"):
+            resume_train(req, executor=ex)
+        assert ex.batches == []
+    finally:
+        alg.write_text(original)
+
+
+@pytest.mark.slow
 def test_a_resume_refuses_a_config_file_edited_since_the_start(confs, tmp_path):
     """The hybrid file a run started with, edited before its resume: the resume names the value
     recorded and the value read now, and trains nothing."""

@@ -316,3 +316,24 @@ def test_an_exp_config_that_is_not_its_digest_is_refused_by_every_reader(tmp_pat
     err = capsys.readouterr().err
     assert f"urb-jax: error: {path}: its content does not match" in err and "--overwrite" in err
     assert json.loads(path.read_text())["env_seed"] == 43  # nothing rewritten
+
+
+# --- the algorithm config a resume re-reads --------------------------------------------------------
+
+
+def test_a_resume_compares_the_algorithm_config_it_rereads_with_the_record(tmp_path):
+    import dataclasses
+
+    from urb_jax.runs.request import TrainRequest
+    from urb_jax.runs.setup import ALG_GIVEN_KEY, check_recorded_configs, load_setup, recorded_values
+
+    setup = load_setup(TrainRequest(alg="iql", task_conf="test", results_dir=str(tmp_path)))
+    recorded = {**recorded_values(setup), "train_args": {"alg_conf": "config1"}}
+    check_recorded_configs(tmp_path / "exp_config.json", recorded, setup)  # the same values
+    lr = recorded[ALG_GIVEN_KEY]["lr"]
+    edited = setup._replace(alg_config=dataclasses.replace(setup.alg_config, lr=lr * 2))
+    with pytest.raises(UrbJaxError, match=rf"configs changed since it started \('alg.lr' was {lr!r}, now "
+                                          rf"{lr * 2!r}; read from .*the algorithm config 'config1'"):
+        check_recorded_configs(tmp_path / "exp_config.json", recorded, edited)
+    before = {k: v for k, v in recorded.items() if k != ALG_GIVEN_KEY}  # a run from before the key
+    check_recorded_configs(tmp_path / "exp_config.json", before, edited)
