@@ -198,6 +198,28 @@ def test_human_phase_reuse_refuses_a_different_phase(confs, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("damage", ["records.parquet", "human_phase.npz", "exp_config.json"])
+def test_human_phase_reuse_refuses_a_damaged_source_naming_the_file(pair, confs, tmp_path, damage):
+    """A byte flipped in the source's records or human phase, or a value of its exp_config.json
+    edited: refused before any folder or SUMO day, naming the file."""
+    import shutil
+
+    src = tmp_path / "src"
+    shutil.copytree(pair["outs"][0].folder, src)
+    path = src / damage
+    if damage == "exp_config.json":
+        path.write_text(path.read_text().replace('"env_seed": 42', '"env_seed": 41'))
+    else:
+        data = bytearray(path.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        path.write_bytes(bytes(data))
+    ex = FakeExecutor()
+    with pytest.raises(UrbJaxError, match=f"{path}: (does not match its digest|its content does not match)"):
+        _train(confs, tmp_path, "reuse", ex, seeds=[0], human_phase_from="src")
+    assert ex.batches == [] and not (tmp_path / "reuse").exists()
+
+
+@pytest.mark.slow
 def test_a_resume_refuses_an_algorithm_config_edited_since_the_start(confs, tmp_path):
     """The algorithm config file a run started with, edited before its resume: refused naming
     alg.<key> with the value recorded and the value read now, before any SUMO day."""

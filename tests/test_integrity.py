@@ -337,3 +337,36 @@ def test_a_resume_compares_the_algorithm_config_it_rereads_with_the_record(tmp_p
         check_recorded_configs(tmp_path / "exp_config.json", recorded, edited)
     before = {k: v for k, v in recorded.items() if k != ALG_GIVEN_KEY}  # a run from before the key
     check_recorded_configs(tmp_path / "exp_config.json", before, edited)
+
+
+# --- --human-phase-from: the source's files ---------------------------------------------------------
+
+
+def _source(folder):
+    from urb_jax.reporting.records import write_with_digest
+    from urb_jax.training.human_phase import HUMAN_FILE
+
+    w = _writer(folder)
+    w.close()
+    write_with_digest(folder / HUMAN_FILE, lambda tmp: tmp.write_bytes(b"an npz file's bytes" * 10))
+    return folder / RECORDS_FILE, folder / HUMAN_FILE
+
+
+@pytest.mark.parametrize("damaged", [RECORDS_FILE, "human_phase.npz"])
+def test_a_human_phase_source_with_a_damaged_file_is_refused_naming_it(tmp_path, damaged):
+    from urb_jax.training.human_phase import check_source_files
+
+    _source(tmp_path)
+    check_source_files(tmp_path)  # intact
+    _flip(tmp_path / damaged, 0.5)
+    with pytest.raises(UrbJaxError, match=rf"{tmp_path / damaged}: does not match its digest: the human "
+                                          r"phase of .* cannot be reused.*drop --human-phase-from"):
+        check_source_files(tmp_path)
+
+
+def test_a_human_phase_source_from_before_digests_is_used_as_it_is(tmp_path):
+    from urb_jax.training.human_phase import check_source_files
+
+    for f in _source(tmp_path):
+        digest_path(f).unlink()
+    check_source_files(tmp_path)

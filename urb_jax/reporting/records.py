@@ -113,6 +113,20 @@ def damaged_parts(folder: str | os.PathLike, n_parts: int) -> list[tuple[int, st
     return bad
 
 
+def damaged_records(folder: str | os.PathLike) -> list[str]:
+    """'path: why' of each records file of `folder` that does not match its digest: records.parquet
+    where the run merged its records, else each part (parts of a run from before digests, none with
+    one: trusted, as a resume adopts them)."""
+    folder = Path(folder)
+    if (folder / RECORDS_FILE).is_file():
+        why = damage_of(folder / RECORDS_FILE)
+        return [] if why is None else [f"{folder / RECORDS_FILE}: {why}"]
+    parts = folder / PARTS_DIR
+    if not any(parts.glob(f"part-*{DIGEST_SUFFIX}")):
+        return []
+    return [f"{p}: {why}" for p in sorted(parts.glob("part-*.parquet")) if (why := damage_of(p)) is not None]
+
+
 SCHEMA = pa.schema([
     ("day", pa.int32()), ("phase", pa.string()), ("agent", pa.int64()), ("kind", pa.string()),
     ("od", pa.int32()), ("start_time", pa.int32()), ("action", pa.int8()),
