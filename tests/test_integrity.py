@@ -274,6 +274,65 @@ def test_a_checkpoint_save_that_does_not_finish_is_an_error_not_a_hang(tmp_path)
         wait_bounded(lambda: (_ for _ in ()).throw(OSError("disk")), 5, tmp_path)
 
 
+# --- memory running out in a SUMO worker process ---------------------------------------------------
+
+
+@pytest.fixture
+def oom_workers(monkeypatch):
+    """SumoPool workers on support.oom_worker's stand-in simulator; returns the mode setter."""
+    from support import oom_worker
+
+    from urb_jax.sumo_bridge import pool as pool_module
+
+    monkeypatch.setattr(pool_module, "_worker_main", oom_worker.worker_main)
+    return lambda mode: monkeypatch.setenv(oom_worker.MODE, mode)
+
+
+@pytest.mark.parametrize("mode, reason", [("memory", "ran out of memory (MemoryError)"),
+                                          ("kill", "killed by SIGKILL")])
+def test_a_sumo_worker_out_of_memory_twice_is_a_memory_error_with_sumos_hint(oom_workers, grid_scenario,
+                                                                              tmp_path, mode, reason):
+    from urb_jax.core.phase import SUMO_MEMORY_HINT
+    from urb_jax.sumo_bridge import SumoOutOfMemoryError, SumoPool
+
+    oom_workers(mode)
+    with SumoPool(1, log_dir=tmp_path, day_timeout_s=60) as p:
+        with pytest.raises(SumoOutOfMemoryError) as caught:
+            p.run_days(grid_scenario, grid_scenario.fft.argmin(1)[None], [3])
+        assert p.restarts == 2  # restarted once for the retry, once after it: the pool stays usable
+    msg = str(caught.value)
+    assert msg.splitlines()[0].startswith("SUMO day 0 (seed 3) of network urb_grid failed twice, memory ")
+    assert SUMO_MEMORY_HINT in msg and "hybrid.sumo_workers" in msg and msg.count(reason) == 2
+    assert is_out_of_memory(caught.value)
+    folder = tmp_path / "run"
+    folder.mkdir()
+    with pytest.raises(OutOfMemoryError) as stopped, stops_cleanly([folder]):
+        enter_phase("the human phase (human SUMO days, calibration days)")
+        raise caught.value
+    out = str(stopped.value)
+    assert "out of memory during the human phase (human SUMO days, calibration days)" in out
+    assert "SumoOutOfMemoryError: SUMO day 0 (seed 3)" in out and SUMO_MEMORY_HINT in out
+    assert "hybrid.num_envs" not in out  # the main process's hint is not SUMO's
+    assert f"urb-jax train --resume run --results-dir {tmp_path}" in out
+
+
+def test_a_sumo_worker_out_of_memory_once_is_restarted_and_its_day_retried(oom_workers, grid_scenario,
+                                                                          tmp_path, caplog):
+    from support.fakeday import FakeDay
+
+    from urb_jax.sumo_bridge import SumoPool
+
+    oom_workers(f"memory-once:{tmp_path / 'failed_once'}")
+    choices = grid_scenario.fft.argmin(1)[None]
+    with SumoPool(1, log_dir=tmp_path, day_timeout_s=60) as p, \
+            caplog.at_level(logging.WARNING, logger="urb_jax"):
+        (day,) = p.run_days(grid_scenario, choices, [3])
+        assert p.restarts == 1
+    assert day.same_as(FakeDay()(grid_scenario, choices[0], seed=3))
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert "ran out of memory (MemoryError)" in warning and "retrying the day" in warning
+
+
 # --- exp_config.json's digest ----------------------------------------------------------------------
 
 

@@ -21,7 +21,7 @@ from urb_jax.core.choices import DEFAULT_NETWORK
 from urb_jax.core.configio import in_section, to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop, stop_cause
-from urb_jax.core.phase import MEMORY_HINT, current_phase, enter_phase, is_out_of_memory
+from urb_jax.core.phase import current_phase, enter_phase, is_out_of_memory, memory_hint
 from urb_jax.core.version import __version__
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.runs.folder import (
@@ -152,14 +152,14 @@ def stops_cleanly(folders: list[Path], resumable: bool = True) -> Iterator[None]
 
 
 class OutOfMemoryError(UrbJaxError):
-    """Memory ran out in this process (MemoryError, XLA's RESOURCE_EXHAUSTED): the phase, what uses
-    less memory, and how to continue."""
+    """Memory ran out in this process (MemoryError, XLA's RESOURCE_EXHAUSTED) or in a SUMO worker
+    process: the phase, what uses less memory there (`core.phase.memory_hint`), and how to continue."""
 
     def __init__(self, folders: list[Path], exc: BaseException, resume: str) -> None:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
         super().__init__(f"{folders[0]}: out of memory during {current_phase()} ({type(exc).__name__}: "
-                         f"{first}). {MEMORY_HINT}. {resume} (with the same settings, once more memory is "
-                         "free).")
+                         f"{first}). {memory_hint(exc)}. {resume} (with the same settings, once more "
+                         "memory is free).")
 
 
 def _resume_hint(folders: list[Path], resumable: bool) -> str:
