@@ -16,8 +16,9 @@ Resumable: finished trials are kept in DIR/trials.json and skipped when run agai
 in SUMO; tests/support/tiny_runs.py): bytes flipped
 at several offsets of a round checkpoint's files, of a record part (the newest, and the human phase's
 first), of a human-day journal entry and of exp_config.json, each in a copy of a run stopped at an
-observed instant and then resumed; and SIGTERM and SIGHUP mid-run, then `--resume`. Each trial's
-outcome is "identical" (records and metrics equal the uninterrupted run's), "refused" (exit 2 with
+observed instant and then resumed (and exp_config.json's env_seed edited, the JSON still valid);
+and SIGTERM and SIGHUP mid-run, then `--resume`. Each trial's outcome is "identical" (records
+and metrics equal the uninterrupted run's), "refused" (exit 2 with
 a message, no records.parquet or metrics written) or WRONG (anything else); a journal entry is also
 replaced by a copy of another day's entry (readable, but not its day). Table in
 DIR/integrity.md.
@@ -42,6 +43,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from support.digests import result_digests
 from support.tiny_runs import tiny_iql_run
+
+from urb_jax.core.paths import DAY_STORE_ENV
 
 HYBRID = {"train_days": 120, "num_envs": 4, "surrogate_days_per_round": 32, "sumo_days_per_round": 4,
           "sumo_updates": 1, "sumo_workers": 2, "calib_human_days": 5, "calib_varied_days": 2,
@@ -231,6 +234,9 @@ def _outcome(results: Path, exp_id: str, ref: list[str] | None) -> dict:
 def integrity(out: Path) -> None:
     """The integrity trials (module docstring); prints and writes DIR/integrity.md."""
     out.mkdir(parents=True, exist_ok=True)
+    # every day in SUMO: with the SUMO day store on, a run whose days an earlier run stored finishes
+    # its human phase before the instant it is to be stopped at (and no trial would damage a day)
+    os.environ[DAY_STORE_ENV] = "0"
     confs = tiny_iql_run(out)  # the tests' tiny IQL run: 3 rounds of 4 surrogate and 2 SUMO days
     done_path = out / "trials.json"
     trials = json.loads(done_path.read_text()) if done_path.is_file() else {}
@@ -270,6 +276,7 @@ def integrity(out: Path) -> None:
         plan += [(f"{what} @{at}", "round2", what, at) for at in OFFSETS]
     plan += [(f"journal entry @{at}", "human", "journal entry", at) for at in OFFSETS]
     plan.append(("journal entry replaced by another day's", "human", "journal swap", 0.0))
+    plan.append(("exp_config.json env_seed edited", "round2", "config edit", 0.0))
     for trial, base_name, what, at in plan:
         if trial in trials:
             continue
@@ -281,6 +288,10 @@ def integrity(out: Path) -> None:
         if what == "journal swap":  # a valid entry of another day under this day's name
             shutil.copy(entries[3], entries[2])
             how = "journal entry replaced by a copy of another day's entry"
+        elif what == "config edit":  # still valid JSON: only its digest tells
+            cfg = folder / "exp_config.json"
+            cfg.write_text(cfg.read_text().replace('"env_seed": 42', '"env_seed": 43'))
+            how = "exp_config.json's env_seed edited (42 to 43, valid JSON)"
         else:
             target = entries[2] if what == "journal entry" else files(folder)[what]
             how = f"flip byte {_flip(target, at)} of {what} ({at:.0%} in)"

@@ -11,12 +11,12 @@ from urb_jax.sumo_bridge.keys import day_key, scenario_key
 from urb_jax.sumo_bridge.memo import MemoExecutor
 from urb_jax.sumo_bridge.pool import SumoPool
 from urb_jax.sumo_bridge.ray_executor import RayExecutor
-from urb_jax.sumo_bridge.scheduler import SumoDayError
+from urb_jax.sumo_bridge.scheduler import SumoDayError, SumoOutOfMemoryError
 from urb_jax.sumo_bridge.sim import InProcessExecutor, Simulator, run_day, run_days
 from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, DayExecutor, DayResult, one_day
 
 __all__ = [
     "ARRIVED", "REMOVED_CAP", "REMOVED_STUCK", "DayExecutor", "DayResult", "InProcessExecutor",
-    "MemoExecutor", "RayExecutor", "Simulator", "SumoConfig", "SumoDayError", "SumoPool", "day_key",
-    "one_day", "run_day", "run_days", "scenario_key",
+    "MemoExecutor", "RayExecutor", "Simulator", "SumoConfig", "SumoDayError", "SumoOutOfMemoryError",
+    "SumoPool", "day_key", "one_day", "run_day", "run_days", "scenario_key",
 ]

@@ -4,7 +4,10 @@
 scheduled by `scheduler.schedule_days` (one retry loop for the pool and the Ray executor): a
 worker that crashes, raises, or exceeds the per-day wall-clock limit is killed and restarted, and
 its day is retried once; a second failure raises `SumoDayError` naming the network, the day and
-SUMO's error output (the tail of that worker's log). SUMO's messages go to one log file per worker.
+SUMO's error output (the tail of that worker's log). A worker that runs out of memory sends its
+MemoryError back as such ("oom"); one killed by SIGKILL without a result (the kernel's out-of-memory
+killer) is taken for the same: a day that fails twice so raises `SumoOutOfMemoryError`. SUMO's
+messages go to one log file per worker.
 """
 
 from __future__ import annotations
@@ -59,8 +62,18 @@ def _serve_days(conn: Connection, sim: Simulator) -> None:
             conn.send(("ok", tid, res))
         except (BrokenPipeError, ConnectionResetError):
             raise  # the parent is gone
+        except MemoryError:
+            conn.send(("oom", tid, _memory_error_text()))
         except Exception:
             conn.send(("err", tid, traceback.format_exc()))
+
+
+def _memory_error_text() -> str:
+    """The MemoryError's traceback, or its name where formatting it needs memory there is not."""
+    try:
+        return traceback.format_exc()
+    except MemoryError:
+        return "MemoryError"
 
 
 class _Worker:
@@ -152,12 +165,11 @@ class SumoPool:
                 try:
                     kind, _, payload = w.conn.recv()
                 except (EOFError, OSError):
-                    out[w.index] = _failed(w, f"worker {w.index} died (exit code {w.proc.exitcode})")
+                    out[w.index] = _died(w)
                     continue
-                out[w.index] = payload if kind == "ok" else _failed(w, f"worker {w.index} raised:\n{payload}")
+                out[w.index] = _outcome(w, kind, payload)
             elif w.proc.sentinel in ready:
-                w.proc.join(timeout=1)
-                out[w.index] = _failed(w, f"worker {w.index} died (exit code {w.proc.exitcode})")
+                out[w.index] = _died(w)
         return out
 
     def overdue(self, w: _Worker) -> Failed:
@@ -193,5 +205,26 @@ class SumoPool:
         self.close()
 
 
-def _failed(w: _Worker, reason: str) -> Failed:
-    return Failed(f"{reason}\n--- SUMO log tail ({w.log_path}) ---\n{log_tail(w.log_path)}", str(w.log_path))
+def _failed(w: _Worker, reason: str, memory: bool = False) -> Failed:
+    return Failed(f"{reason}\n--- SUMO log tail ({w.log_path}) ---\n{log_tail(w.log_path)}", str(w.log_path),
+                  memory)
+
+
+def _outcome(w: _Worker, kind: str, payload: object) -> DayResult | Failed:
+    """A worker's answer: its day, the MemoryError it ran into, or the error it raised."""
+    if kind == "ok":
+        return cast(DayResult, payload)
+    if kind == "oom":
+        return _failed(w, f"worker {w.index} ran out of memory (MemoryError):\n{payload}", memory=True)
+    return _failed(w, f"worker {w.index} raised:\n{payload}")
+
+
+def _died(w: _Worker) -> Failed:
+    """A worker that ended without an answer; killed by SIGKILL: most likely the kernel's
+    out-of-memory killer (a kill -9 by hand reads the same, and is retried the same)."""
+    w.proc.join(timeout=1)
+    code = w.proc.exitcode
+    if code == -signal.SIGKILL:
+        return _failed(w, f"worker {w.index} died (exit code {code}: killed by SIGKILL, as the kernel's "
+                          "out-of-memory killer does when memory runs out)", memory=True)
+    return _failed(w, f"worker {w.index} died (exit code {code})")

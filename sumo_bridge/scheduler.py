@@ -6,7 +6,10 @@ take the day) is restarted and its day retried once, first in the queue; a secon
 same day restarts the other busy workers (their days are abandoned, the executor stays usable)
 and raises `SumoDayError` with both attempts. Any other exception abandons the days in flight
 the same way; Ctrl-C restarts nothing (the run is stopping, and closing the executor kills the
-busy workers at once). A backend supplies only submit / wait / overdue / restart.
+busy workers at once). A day whose attempts ran out of memory (a MemoryError the worker sent back,
+or a worker killed by SIGKILL, as the kernel's out-of-memory killer does) raises
+`SumoOutOfMemoryError` instead, with what uses less memory. A backend supplies only submit / wait /
+overdue / restart.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import numpy as np
 
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.core.phase import SUMO_MEMORY_HINT
 from urb_jax.sumo_bridge.batch import DayBatch, as_batch, check_batch
 from urb_jax.sumo_bridge.keys import scenario_key
 from urb_jax.sumo_bridge.types import DayResult
@@ -29,6 +33,22 @@ log = logging.getLogger(__name__)
 
 class SumoDayError(UrbJaxError):
     """A SUMO day failed twice (or a worker could not start)."""
+
+
+class SumoOutOfMemoryError(SumoDayError):
+    """A SUMO day failed twice, and memory ran out in its worker (`memory_hint`: what uses less)."""
+
+    memory_hint = SUMO_MEMORY_HINT
+
+
+def out_of_memory_twice(scenario: Scenario, day: int, seed: int, attempts: list[Failed],
+                        where: str = "") -> SumoOutOfMemoryError:
+    """The error for a day that failed twice, memory running out in a worker: the first line says so
+    (with the newest SUMO log), the hint and each attempt follow."""
+    return SumoOutOfMemoryError(
+        f"SUMO day {day} (seed {seed}) of network {scenario.name} failed twice{where}, memory running out "
+        f"in its worker (SUMO log {attempts[-1].log or 'none'})\n{SUMO_MEMORY_HINT}.\n"
+        + "\n".join(f"attempt {i + 1}: {f.text}" for i, f in enumerate(attempts)))
 
 
 def failed_twice(scenario: Scenario, day: int, seed: int, attempts: list[str],
@@ -66,6 +86,7 @@ class Failed(NamedTuple):
 
     text: str
     log: str = ""
+    memory: bool = False  # memory ran out: a MemoryError in the worker, or a SIGKILL without a result
 
     def reason(self) -> str:
         """The reason in one line: its first line, plus the exception's line when the worker raised."""
@@ -116,7 +137,7 @@ class _Run(Generic[S]):
         self.day_timeout_s, self.where = day_timeout_s, where
         self.todo = deque(range(len(batch.seeds)))
         self.results: list[DayResult | None] = [None] * len(batch.seeds)
-        self.failures: dict[int, list[str]] = {}
+        self.failures: dict[int, list[Failed]] = {}
 
     def run(self) -> list[DayResult]:
         try:
@@ -173,7 +194,7 @@ class _Run(Generic[S]):
         assert tid is not None
         s.task = None
         attempts = self.failures.setdefault(tid, [])
-        attempts.append(failed.text)
+        attempts.append(failed)
         log.warning("SUMO %s; restarting it (day %d of the batch, seed %s, network %s%s: %s; SUMO log %s)",
                     failed.reason(), tid, self.batch.seeds[tid], self.scenario.name, self.where,
                     "retrying the day" if len(attempts) < 2 else "the day failed twice",
@@ -184,5 +205,8 @@ class _Run(Generic[S]):
                 if other.task is not None:
                     other.task = None
                     self.w.restart(other)
-            raise failed_twice(self.scenario, tid, self.batch.seeds[tid], attempts, self.where)
+            seed = self.batch.seeds[tid]
+            if any(f.memory for f in attempts):
+                raise out_of_memory_twice(self.scenario, tid, seed, attempts, self.where)
+            raise failed_twice(self.scenario, tid, seed, [f.text for f in attempts], self.where)
         self.todo.appendleft(tid)

@@ -137,7 +137,7 @@ def test_a_run_resumes_with_the_seed_axis_it_started_with(confs, tmp_path, monke
     monkeypatch.setattr(fns, "MAP_SEEDS_PARAMS", 0)
     for out in killed:  # as such a run's exp_config.json reads
         config = json.loads((out.folder / "exp_config.json").read_text())
-        del config["hybrid_seed_axis"]
+        del config["hybrid_seed_axis"], config["content_sha256"]  # nor had it a digest
         (out.folder / "exp_config.json").write_text(json.dumps(config))
     resumed = resume_train(ResumeRequest("old_s0", results_dir=str(tmp_path), progress=False),
                            executor=FakeExecutor())
@@ -195,6 +195,46 @@ def test_human_phase_reuse_refuses_a_different_phase(confs, tmp_path):
     with pytest.raises(UrbJaxError, match="not found"):
         _train(confs, tmp_path, "bad2", FakeExecutor(), human_phase_from="nowhere")
     assert not (tmp_path / "bad").exists() and not (tmp_path / "bad2").exists()  # refused before any folder
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("damage", ["records.parquet", "human_phase.npz", "exp_config.json"])
+def test_human_phase_reuse_refuses_a_damaged_source_naming_the_file(pair, confs, tmp_path, damage):
+    """A byte flipped in the source's records or human phase, or a value of its exp_config.json
+    edited: refused before any folder or SUMO day, naming the file."""
+    import shutil
+
+    src = tmp_path / "src"
+    shutil.copytree(pair["outs"][0].folder, src)
+    path = src / damage
+    if damage == "exp_config.json":
+        path.write_text(path.read_text().replace('"env_seed": 42', '"env_seed": 41'))
+    else:
+        data = bytearray(path.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        path.write_bytes(bytes(data))
+    ex = FakeExecutor()
+    with pytest.raises(UrbJaxError, match=f"{path}: (does not match its digest|its content does not match)"):
+        _train(confs, tmp_path, "reuse", ex, seeds=[0], human_phase_from="src")
+    assert ex.batches == [] and not (tmp_path / "reuse").exists()
+
+
+@pytest.mark.slow
+def test_a_resume_refuses_an_algorithm_config_edited_since_the_start(confs, tmp_path):
+    """The algorithm config file a run started with, edited before its resume: refused naming
+    alg.<key> with the value recorded and the value read now, before any SUMO day."""
+    (killed,) = _train(confs, tmp_path, "alg_edit", FakeExecutor(), seeds=[0], stop_after_round=1)
+    alg = Path(confs["alg_conf"])
+    original = alg.read_text()
+    try:
+        alg.write_text(json.dumps(json.loads(original) | {"num_epochs": 2}))
+        ex = FakeExecutor()
+        req = ResumeRequest(killed.folder.name, results_dir=str(tmp_path), progress=False)
+        with pytest.raises(UrbJaxError, match=r"changed since it started \('alg.num_epochs' was 1, now 2"):
+            resume_train(req, executor=ex)
+        assert ex.batches == []
+    finally:
+        alg.write_text(original)
 
 
 @pytest.mark.slow

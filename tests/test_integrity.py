@@ -272,3 +272,160 @@ def test_a_checkpoint_save_that_does_not_finish_is_an_error_not_a_hang(tmp_path)
     assert time.perf_counter() - t0 < 5
     with pytest.raises(OSError, match="disk"):  # the wait's own error comes through
         wait_bounded(lambda: (_ for _ in ()).throw(OSError("disk")), 5, tmp_path)
+
+
+# --- memory running out in a SUMO worker process ---------------------------------------------------
+
+
+@pytest.fixture
+def oom_workers(monkeypatch):
+    """SumoPool workers on support.oom_worker's stand-in simulator; returns the mode setter."""
+    from support import oom_worker
+
+    from urb_jax.sumo_bridge import pool as pool_module
+
+    monkeypatch.setattr(pool_module, "_worker_main", oom_worker.worker_main)
+    return lambda mode: monkeypatch.setenv(oom_worker.MODE, mode)
+
+
+@pytest.mark.parametrize("mode, reason", [("memory", "ran out of memory (MemoryError)"),
+                                          ("kill", "killed by SIGKILL")])
+def test_a_sumo_worker_out_of_memory_twice_is_a_memory_error_with_sumos_hint(oom_workers, grid_scenario,
+                                                                              tmp_path, mode, reason):
+    from urb_jax.core.phase import SUMO_MEMORY_HINT
+    from urb_jax.sumo_bridge import SumoOutOfMemoryError, SumoPool
+
+    oom_workers(mode)
+    with SumoPool(1, log_dir=tmp_path, day_timeout_s=60) as p:
+        with pytest.raises(SumoOutOfMemoryError) as caught:
+            p.run_days(grid_scenario, grid_scenario.fft.argmin(1)[None], [3])
+        assert p.restarts == 2  # restarted once for the retry, once after it: the pool stays usable
+    msg = str(caught.value)
+    assert msg.splitlines()[0].startswith("SUMO day 0 (seed 3) of network urb_grid failed twice, memory ")
+    assert SUMO_MEMORY_HINT in msg and "hybrid.sumo_workers" in msg and msg.count(reason) == 2
+    assert is_out_of_memory(caught.value)
+    folder = tmp_path / "run"
+    folder.mkdir()
+    with pytest.raises(OutOfMemoryError) as stopped, stops_cleanly([folder]):
+        enter_phase("the human phase (human SUMO days, calibration days)")
+        raise caught.value
+    out = str(stopped.value)
+    assert "out of memory during the human phase (human SUMO days, calibration days)" in out
+    assert "SumoOutOfMemoryError: SUMO day 0 (seed 3)" in out and SUMO_MEMORY_HINT in out
+    assert "hybrid.num_envs" not in out  # the main process's hint is not SUMO's
+    assert f"urb-jax train --resume run --results-dir {tmp_path}" in out
+
+
+def test_a_sumo_worker_out_of_memory_once_is_restarted_and_its_day_retried(oom_workers, grid_scenario,
+                                                                          tmp_path, caplog):
+    from support.fakeday import FakeDay
+
+    from urb_jax.sumo_bridge import SumoPool
+
+    oom_workers(f"memory-once:{tmp_path / 'failed_once'}")
+    choices = grid_scenario.fft.argmin(1)[None]
+    with SumoPool(1, log_dir=tmp_path, day_timeout_s=60) as p, \
+            caplog.at_level(logging.WARNING, logger="urb_jax"):
+        (day,) = p.run_days(grid_scenario, choices, [3])
+        assert p.restarts == 1
+    assert day.same_as(FakeDay()(grid_scenario, choices[0], seed=3))
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert "ran out of memory (MemoryError)" in warning and "retrying the day" in warning
+
+
+# --- exp_config.json's digest ----------------------------------------------------------------------
+
+
+def test_exp_config_carries_the_sha256_of_its_canonical_content(tmp_path):
+    import hashlib
+    import json
+
+    from urb_jax.core.atomic import JSON_DIGEST_KEY
+    from urb_jax.runs.folder import read_run_config, write_config
+
+    write_config(tmp_path, {"status": "running", "seeds": (1, 2), "lr": np.float32(0.5)})
+    recorded = json.loads((tmp_path / "exp_config.json").read_text())
+    by_hand = hashlib.sha256(b'{"lr":0.5,"seeds":[1,2],"status":"running"}').hexdigest()
+    assert recorded[JSON_DIGEST_KEY] == by_hand
+    assert read_run_config(tmp_path) == {"status": "running", "seeds": [1, 2], "lr": 0.5}
+    # indentation and key order are no content: the same record, written otherwise, still reads
+    (tmp_path / "exp_config.json").write_text(json.dumps(dict(reversed(recorded.items()))))
+    assert read_run_config(tmp_path)["seeds"] == [1, 2]
+    # a record from before digests reads as it is
+    (tmp_path / "exp_config.json").write_text(json.dumps({"status": "running"}))
+    assert read_run_config(tmp_path) == {"status": "running"}
+
+
+def test_an_exp_config_that_is_not_its_digest_is_refused_by_every_reader(tmp_path, capsys):
+    import json
+
+    from urb_jax.commands.cli import main
+    from urb_jax.reporting.records import run_config
+    from urb_jax.runs.folder import read_run_config, read_train_config, write_config
+
+    folder = tmp_path / "r"
+    write_config(folder, {"status": "running", "train_args": {"seed": 0}, "env_seed": 42})
+    path = folder / "exp_config.json"
+    path.write_text(path.read_text().replace('"env_seed": 42', '"env_seed": 43'))
+    for read in (read_run_config, read_train_config, run_config):
+        with pytest.raises(UrbJaxError, match=r"exp_config.json: its content does not match the sha256 "
+                                              r"recorded in it \('content_sha256' .*Fix: undo the edit"):
+            read(folder)
+    assert main(["train", "--resume", "r", "--results-dir", str(tmp_path), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"urb-jax: error: {path}: its content does not match" in err and "--overwrite" in err
+    assert json.loads(path.read_text())["env_seed"] == 43  # nothing rewritten
+
+
+# --- the algorithm config a resume re-reads --------------------------------------------------------
+
+
+def test_a_resume_compares_the_algorithm_config_it_rereads_with_the_record(tmp_path):
+    import dataclasses
+
+    from urb_jax.runs.request import TrainRequest
+    from urb_jax.runs.setup import ALG_GIVEN_KEY, check_recorded_configs, load_setup, recorded_values
+
+    setup = load_setup(TrainRequest(alg="iql", task_conf="test", results_dir=str(tmp_path)))
+    recorded = {**recorded_values(setup), "train_args": {"alg_conf": "config1"}}
+    check_recorded_configs(tmp_path / "exp_config.json", recorded, setup)  # the same values
+    lr = recorded[ALG_GIVEN_KEY]["lr"]
+    edited = setup._replace(alg_config=dataclasses.replace(setup.alg_config, lr=lr * 2))
+    with pytest.raises(UrbJaxError, match=rf"configs changed since it started \('alg.lr' was {lr!r}, now "
+                                          rf"{lr * 2!r}; read from .*the algorithm config 'config1'"):
+        check_recorded_configs(tmp_path / "exp_config.json", recorded, edited)
+    before = {k: v for k, v in recorded.items() if k != ALG_GIVEN_KEY}  # a run from before the key
+    check_recorded_configs(tmp_path / "exp_config.json", before, edited)
+
+
+# --- --human-phase-from: the source's files ---------------------------------------------------------
+
+
+def _source(folder):
+    from urb_jax.reporting.records import write_with_digest
+    from urb_jax.training.human_phase import HUMAN_FILE
+
+    w = _writer(folder)
+    w.close()
+    write_with_digest(folder / HUMAN_FILE, lambda tmp: tmp.write_bytes(b"an npz file's bytes" * 10))
+    return folder / RECORDS_FILE, folder / HUMAN_FILE
+
+
+@pytest.mark.parametrize("damaged", [RECORDS_FILE, "human_phase.npz"])
+def test_a_human_phase_source_with_a_damaged_file_is_refused_naming_it(tmp_path, damaged):
+    from urb_jax.training.human_phase import check_source_files
+
+    _source(tmp_path)
+    check_source_files(tmp_path)  # intact
+    _flip(tmp_path / damaged, 0.5)
+    with pytest.raises(UrbJaxError, match=rf"{tmp_path / damaged}: does not match its digest: the human "
+                                          r"phase of .* cannot be reused.*drop --human-phase-from"):
+        check_source_files(tmp_path)
+
+
+def test_a_human_phase_source_from_before_digests_is_used_as_it_is(tmp_path):
+    from urb_jax.training.human_phase import check_source_files
+
+    for f in _source(tmp_path):
+        digest_path(f).unlink()
+    check_source_files(tmp_path)

@@ -17,6 +17,8 @@ from urb_jax.reporting.records import (
     RecordsWriter,
     read_records,
     remove_parts,
+    run_config,
+    write_run_config,
 )
 from urb_jax.runs.baseline import run_baseline
 from urb_jax.runs.folder import (
@@ -139,10 +141,13 @@ def test_human_phase_replay_matches_a_fresh_run(tmp_path):
     rec = read_records(src.folder)
     rec.loc[(rec.day == 2) & (rec.agent == rec.agent.iloc[0]), "action"] += 1
     rec.to_parquet(src.folder / "records.parquet")
+    tampered = BaselineRequest(model="random", results_dir=str(tmp_path), exp_id="tampered", progress=False,
+                               human_phase_from="src")
+    with pytest.raises(UrbJaxError, match=r"records\.parquet: does not match its digest"):
+        run_baseline(tampered, executor=FakeDay(), task_overrides=TINY)
+    (src.folder / "records.parquet.sha256").unlink()  # a source from before digests: the replay tells
     with pytest.raises(UrbJaxError, match="day 2"):
-        run_baseline(BaselineRequest(model="random", results_dir=str(tmp_path), exp_id="tampered",
-                                     progress=False,
-                                     human_phase_from="src"), executor=FakeDay(), task_overrides=TINY)
+        run_baseline(tampered, executor=FakeDay(), task_overrides=TINY)
 
 
 def test_metrics_command_recomputes_a_finished_runs_columns(tmp_path, capsys):
@@ -157,8 +162,7 @@ def test_metrics_command_recomputes_a_finished_runs_columns(tmp_path, capsys):
     assert main(["metrics", str(out.folder)]) == 0
     pd.testing.assert_frame_equal(pd.read_csv(path), written)
     assert "t_CAV_duration" in capsys.readouterr().out
-    cfg = out.folder / "exp_config.json"
-    cfg.write_text(json.dumps({**json.loads(cfg.read_text()), "status": "running"}))
+    write_run_config(out.folder, {**run_config(out.folder), "status": "running"})  # as an unfinished run's
     assert main(["metrics", str(out.folder)]) == 2
     err = capsys.readouterr().err
     assert "exp_config.json" in err and "Fix: re-run the baseline" in err

@@ -64,7 +64,7 @@ def runs(tmp_path_factory):
     old = root / "results" / "old_iql"
     shutil.copytree(out.folder, old)
     cfg = json.loads((old / "exp_config.json").read_text())
-    for key in ("alg", "baseline_model", "phase_days", "experience_collecting_episodes"):
+    for key in ("alg", "baseline_model", "phase_days", "experience_collecting_episodes", "content_sha256"):
         cfg.pop(key)
     cfg.update(algorithm="iql", script="urb-jax train", alg_config="config1", training_eps=200, mode="hybrid",
                hybrid_config="default", hybrid_train_days=1000)

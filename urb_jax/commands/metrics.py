@@ -23,16 +23,15 @@ def recompute(folder: str) -> dict[str, float]:
     """Rewrite FOLDER/metrics/{Benchmark,Vector}Metrics.csv (atomically) from records.parquet."""
     from pathlib import Path
 
-    from urb_jax.core.atomic import write_json
     from urb_jax.reporting.comparable import is_hybrid
-    from urb_jax.reporting.records import finished_run_config, write_run_metrics
+    from urb_jax.reporting.records import finished_run_config, write_run_config, write_run_metrics
     from urb_jax.reporting.urb_names import names_of, phase_keys
 
     cfg = finished_run_config(folder)
     metrics, records = write_run_metrics(Path(folder), int(cfg["human_days"]), int(cfg["training_days"]),
                                          hybrid=is_hybrid(cfg))
     cfg.update(names_of(cfg), **phase_keys(records, int(cfg["human_days"])))
-    write_json(Path(folder) / "exp_config.json", cfg)
+    write_run_config(folder, cfg)
     return metrics
 
 

@@ -1,7 +1,10 @@
 """The one way urb-jax writes a file: to a temporary name beside it, fsynced, then renamed.
 
 A reader (or a resumed run) therefore sees the old file or the new one, never half of either,
-also after a crash or a full disk. Files get the mode open() gives (0666 less the process's umask:
+also after a crash or a full disk. A JSON record that must not change behind the code's back (a
+run's exp_config.json) carries the sha256 of its own content as one of its keys
+(`write_json_digested`, `checked_json`): one file, one rename, so the digest is never out of step
+with the file. Files get the mode open() gives (0666 less the process's umask:
 0644 under the usual 022), like the files other libraries write into the same folders (plots,
 orbax checkpoints, logs); mkstemp's 0600 would leave records and caches unreadable to the people
 who can read the rest.
@@ -19,6 +22,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from urb_jax.core.errors import UrbJaxError
 
 MODE = 0o666  # less the umask, as open() does
 
@@ -94,3 +99,37 @@ def file_sha256(path: Path) -> str:
         while chunk := f.read(1 << 20):
             h.update(chunk)
     return h.hexdigest()
+
+
+JSON_DIGEST_KEY = "content_sha256"  # a digested JSON record's key: the sha256 of its other keys
+
+
+def json_digest(obj: dict[str, Any]) -> str:
+    """The sha256 of `obj` without JSON_DIGEST_KEY as canonical JSON (keys sorted, no spaces), taken
+    from the values a reader gets back (numpy values and tuples as `write_json` writes them), so that
+    the indentation and key order of the file do not matter, and every value does."""
+    body = {k: v for k, v in obj.items() if k != JSON_DIGEST_KEY}
+    plain = json.loads(json.dumps(body, default=_json_default))
+    return hashlib.sha256(json.dumps(plain, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def write_json_digested(path: str | os.PathLike, obj: dict[str, Any]) -> None:
+    """`write_json` of `obj` with its `json_digest` under JSON_DIGEST_KEY (the last key)."""
+    body = {k: v for k, v in obj.items() if k != JSON_DIGEST_KEY}
+    write_json(path, {**body, JSON_DIGEST_KEY: json_digest(body)})
+
+
+def checked_json(path: Path, obj: dict[str, Any], fix: str) -> dict[str, Any]:
+    """`obj` (read from `path`) without JSON_DIGEST_KEY, once its content matches that digest; a
+    record without one (written before digests) as it is. A mismatch is a UrbJaxError naming the file,
+    both digests and `fix` (what to do)."""
+    recorded = obj.get(JSON_DIGEST_KEY)
+    if recorded is None:
+        return obj
+    now = json_digest(obj)
+    if now != recorded:
+        raise UrbJaxError(f"{path}: its content does not match the sha256 recorded in it "
+                          f"('{JSON_DIGEST_KEY}' {str(recorded)[:16]}..., the content now {now[:16]}...): "
+                          "the file changed after "
+                          f"urb-jax wrote it (damaged, or edited by hand). Fix: {fix}")
+    return {k: v for k, v in obj.items() if k != JSON_DIGEST_KEY}

@@ -1,6 +1,6 @@
 """What a run is doing now, for the message of a stop that has no better context: memory
 exhaustion (a MemoryError, or XLA's RESOURCE_EXHAUSTED) ends a run with the phase it happened in
-and what uses less memory, instead of a traceback."""
+and what uses less memory, instead of a traceback; in a SUMO worker process, with SUMO's hint."""
 
 from __future__ import annotations
 
@@ -10,6 +10,11 @@ MEMORY_HINT = ("To use less memory, start the run again (same command with --ove
                "parallel envs (--set hybrid.num_envs=N, or alg.num_envs for --mode sumo), seeds mapped "
                "instead of vmapped (--set hybrid.seed_axis=map) or fewer seeds trained together "
                "(--set hybrid.max_vmapped_seeds=1)")
+
+
+SUMO_MEMORY_HINT = ("To use less memory in SUMO, start the run again (same command with --overwrite) with "
+                    "fewer SUMO worker processes (--set hybrid.sumo_workers=N; each holds a whole "
+                    "simulation of the network) or on a smaller network")
 
 
 def enter_phase(name: str) -> None:
@@ -22,9 +27,15 @@ def current_phase() -> str:
 
 
 def is_out_of_memory(exc: BaseException) -> bool:
-    """A MemoryError, or an XLA runtime error whose status is RESOURCE_EXHAUSTED (an allocation
-    that failed on the device or the host)."""
-    if isinstance(exc, MemoryError):
+    """A MemoryError, an XLA runtime error whose status is RESOURCE_EXHAUSTED (an allocation
+    that failed on the device or the host), or an error that carries its own `memory_hint` (memory
+    ran out in a SUMO worker process: `sumo_bridge.scheduler`)."""
+    if isinstance(exc, MemoryError) or getattr(exc, "memory_hint", None):
         return True
     names = {t.__name__ for t in type(exc).__mro__}
     return bool(names & {"XlaRuntimeError", "JaxRuntimeError"}) and "RESOURCE_EXHAUSTED" in str(exc)[:2000]
+
+
+def memory_hint(exc: BaseException) -> str:
+    """What uses less memory where `exc` ran out of it: the error's own hint, else MEMORY_HINT's."""
+    return str(getattr(exc, "memory_hint", None) or MEMORY_HINT)

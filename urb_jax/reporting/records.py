@@ -27,7 +27,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from urb_jax.core.atomic import atomic_path, file_sha256, write_bytes
+from urb_jax.core.atomic import atomic_path, checked_json, file_sha256, write_bytes, write_json_digested
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.paths import absolute_dir
 from urb_jax.reporting.comparable import comparable_metrics, is_hybrid
@@ -120,6 +120,20 @@ def damaged_parts(folder: str | os.PathLike, n_parts: int) -> list[tuple[int, st
         if (why := damage_of(p)) is not None:
             bad.append((i, f"{p}: {why}"))
     return bad
+
+
+def damaged_records(folder: str | os.PathLike) -> list[str]:
+    """'path: why' of each records file of `folder` that does not match its digest: records.parquet
+    where the run merged its records, else each part (parts of a run from before digests, none with
+    one: trusted, as a resume adopts them)."""
+    folder = Path(folder)
+    if (folder / RECORDS_FILE).is_file():
+        why = damage_of(folder / RECORDS_FILE)
+        return [] if why is None else [f"{folder / RECORDS_FILE}: {why}"]
+    parts = folder / PARTS_DIR
+    if not any(parts.glob(f"part-*{DIGEST_SUFFIX}")):
+        return []
+    return [f"{p}: {why}" for p in sorted(parts.glob("part-*.parquet")) if (why := damage_of(p)) is not None]
 
 
 SCHEMA = pa.schema([
@@ -279,13 +293,32 @@ def read_records(folder: str | os.PathLike, columns: Sequence[str] | None = None
     return pa.concat_tables([pq.read_table(p, columns=cols) for p in parts]).to_pandas()
 
 
+CONFIG_FILE = "exp_config.json"
+_RECORD_FIX = "restore the file from a backup, or start the run again with the same command and --overwrite."
+
+
 def run_config(folder: str | os.PathLike) -> dict[str, Any]:
-    """A run's exp_config.json."""
-    path = Path(folder) / "exp_config.json"
+    """A run's exp_config.json, checked against the sha256 it carries (a record from before digests:
+    as it is). Missing, unreadable, not a JSON object or not its digest: a UrbJaxError naming the file
+    and the fix (a run is never resumed, reused or measured from a record that changed)."""
+    path = Path(folder) / CONFIG_FILE
     if not path.is_file():
         raise UrbJaxError(f"{path}: not found. Fix: pass a run folder (results/<exp_id>) of a "
                           "`urb-jax train` or `urb-jax baseline` run.")
-    return json.loads(path.read_text())
+    try:
+        config = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:  # ValueError: bad JSON or UTF-8
+        raise UrbJaxError(f"{path}: the run's record cannot be read ({exc}); it was damaged (truncated, "
+                          f"or edited by hand), so the run cannot be resumed or reused. Fix: {_RECORD_FIX}"
+                          ) from None
+    if not isinstance(config, dict):
+        raise UrbJaxError(f"{path}: the run's record is not a JSON object. Fix: {_RECORD_FIX}")
+    return checked_json(path, config, f"undo the edit or {_RECORD_FIX}")
+
+
+def write_run_config(folder: str | os.PathLike, config: dict[str, Any]) -> None:
+    """A run's exp_config.json, carrying the sha256 of its content (`core.atomic.write_json_digested`)."""
+    write_json_digested(Path(folder) / CONFIG_FILE, config)
 
 
 def networks_dir_of(config: dict[str, Any], given: str | None = None) -> str | None:

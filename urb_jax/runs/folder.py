@@ -7,7 +7,6 @@ import atexit
 import datetime
 import fcntl
 import functools
-import json
 import logging
 import os
 import platform
@@ -21,14 +20,20 @@ from typing import Any
 
 import pandas as pd
 
-from urb_jax.core.atomic import umask, write_bytes, write_json
+from urb_jax.core.atomic import umask, write_bytes
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import at_hard_exit
 from urb_jax.core.paths import os_reason
-from urb_jax.reporting.records import remove_parts, write_plots, write_run_metrics
+from urb_jax.reporting.records import (
+    CONFIG_FILE,
+    remove_parts,
+    run_config,
+    write_plots,
+    write_run_config,
+    write_run_metrics,
+)
 from urb_jax.reporting.urb_names import phase_keys
 
-CONFIG_FILE = "exp_config.json"
 ROUNDS_FILE = "rounds.csv"  # a hybrid run's per-round log (`write_rounds`)
 log = logging.getLogger(__name__)
 
@@ -130,7 +135,7 @@ def create_results_dir(root: str | os.PathLike, exp_id: str, overwrite: bool = F
     except OSError as exc:
         raise _unwritable(root, exc) from None
     os.chmod(new, 0o777 & ~umask())
-    write_json(new / CONFIG_FILE, {"status": "created"})  # replaced by the run's own before any SUMO day
+    write_config(new, {"status": "created"})  # replaced by the run's own before any SUMO day
     new.rename(path)  # the folder appears with its exp_config.json: always a urb-jax run
     return path
 
@@ -233,7 +238,8 @@ def machine() -> dict[str, Any]:
 
 
 def write_config(folder: Path, config: dict[str, Any]) -> None:
-    write_json(folder / CONFIG_FILE, config)
+    """exp_config.json with the sha256 of its content (`reporting.records.write_run_config`)."""
+    write_run_config(folder, config)
 
 
 def write_outputs(folder: Path, human_days: int, training_days: int,
@@ -247,20 +253,10 @@ def write_outputs(folder: Path, human_days: int, training_days: int,
 
 
 def read_run_config(folder: Path) -> dict[str, Any]:
-    """The run's exp_config.json; unreadable, not JSON (truncated) or not an object: a UrbJaxError
-    that names the file and what can be done (a run cannot go on without its record)."""
-    path = folder / CONFIG_FILE
-    try:
-        config = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:  # ValueError: bad JSON or UTF-8
-        raise UrbJaxError(f"{path}: the run's record cannot be read ({exc}); it was damaged (truncated, "
-                          "or edited by hand), so the run cannot be resumed or reused. Fix: restore the "
-                          "file from a backup, or start the run again with the same command and "
-                          "--overwrite.") from None
-    if not isinstance(config, dict):
-        raise UrbJaxError(f"{path}: the run's record is not a JSON object. Fix: restore the file from a "
-                          "backup, or start the run again with the same command and --overwrite.")
-    return config
+    """The run's exp_config.json, checked against the sha256 it carries (`reporting.records.run_config`);
+    unreadable, not JSON (truncated), not an object or not its digest: a UrbJaxError that names the
+    file and what can be done (a run cannot go on without its record)."""
+    return run_config(folder)
 
 
 def read_train_config(folder: Path) -> dict[str, Any]:

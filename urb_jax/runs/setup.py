@@ -21,7 +21,7 @@ from urb_jax.core.choices import DEFAULT_NETWORK
 from urb_jax.core.configio import in_section, to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop, stop_cause
-from urb_jax.core.phase import MEMORY_HINT, current_phase, enter_phase, is_out_of_memory
+from urb_jax.core.phase import current_phase, enter_phase, is_out_of_memory, memory_hint
 from urb_jax.core.version import __version__
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
 from urb_jax.runs.folder import (
@@ -201,14 +201,14 @@ def stops_cleanly(folders: list[Path], resumable: bool = True) -> Iterator[None]
 
 
 class OutOfMemoryError(UrbJaxError):
-    """Memory ran out in this process (MemoryError, XLA's RESOURCE_EXHAUSTED): the phase, what uses
-    less memory, and how to continue."""
+    """Memory ran out in this process (MemoryError, XLA's RESOURCE_EXHAUSTED) or in a SUMO worker
+    process: the phase, what uses less memory there (`core.phase.memory_hint`), and how to continue."""
 
     def __init__(self, folders: list[Path], exc: BaseException, resume: str) -> None:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
         super().__init__(f"{folders[0]}: out of memory during {current_phase()} ({type(exc).__name__}: "
-                         f"{first}). {MEMORY_HINT}. {resume} (with the same settings, once more memory is "
-                         "free).")
+                         f"{first}). {memory_hint(exc)}. {resume} (with the same settings, once more "
+                         "memory is free).")
 
 
 def _resume_hint(folders: list[Path], resumable: bool) -> str:
@@ -238,18 +238,37 @@ def experiment_config(scn: Scenario, task: TaskConfig, task_path: Path, env: Env
     }
 
 
+ALG_GIVEN_KEY = "alg_config_given"  # exp_config.json: the algorithm config's values as read (file, --set)
+
+
+def recorded_values(setup: TrainSetup) -> dict[str, Any]:
+    """What a train run records of the configs it read, as exp_config.json holds it (tuples as
+    lists): the env and task values, the hybrid ones as hybrid_<key>, the algorithm's under
+    ALG_GIVEN_KEY (before the trainer fits them to the run: `alg_config_values` at the end)."""
+    return json.loads(json.dumps({**to_dict(setup.env), **to_dict(setup.task),
+                                  **{f"hybrid_{k}": v for k, v in to_dict(setup.hyb).items()},
+                                  ALG_GIVEN_KEY: to_dict(setup.alg_config)}))
+
+
+def _flat(values: dict[str, Any]) -> dict[str, Any]:
+    """`values` with the algorithm's as alg.<key> (the --set spelling) instead of one nested key."""
+    alg = values.get(ALG_GIVEN_KEY) or {}
+    rest = {k: v for k, v in values.items() if k != ALG_GIVEN_KEY}
+    return {**rest, **{f"alg.{k}": v for k, v in alg.items()}}
+
+
 def check_recorded_configs(config_file: Path, config: dict[str, Any], setup: TrainSetup,
                            ignore: Sequence[str] = ()) -> None:
-    """A resume re-reads the run's task, env and hybrid files: each value must be the one the run
-    recorded when it started (a file edited since would change the run half-way). `ignore`: keys the
-    record gives a value of its own."""
-    # as JSON would record them (tuples as lists)
-    now = json.loads(json.dumps({**to_dict(setup.env), **to_dict(setup.task),
-                                 **{f"hybrid_{k}": v for k, v in to_dict(setup.hyb).items()}}))
-    changed = [k for k, v in now.items() if k in config and k not in ignore and v != config[k]]
+    """A resume re-reads the run's task, env, hybrid and algorithm configs: each value must be the one
+    the run recorded when it started (a file edited since would change the run half-way). `ignore`:
+    keys the record gives a value of its own. A key the record lacks (a run from before it) is not
+    compared."""
+    now, was = _flat(recorded_values(setup)), _flat(config)
+    changed = [k for k, v in now.items() if k in was and k not in ignore and v != was[k]]
     if changed:
-        files = f"{setup.task_path}, {setup.env_path}, {setup.hyb_path}"
-        diffs = "; ".join(f"'{k}' was {config[k]!r}, now {now[k]!r}" for k in changed)
+        alg_conf = config.get("train_args", {}).get("alg_conf")
+        files = f"{setup.task_path}, {setup.env_path}, {setup.hyb_path}, the algorithm config {alg_conf!r}"
+        diffs = "; ".join(f"'{k}' was {was[k]!r}, now {now[k]!r}" for k in changed)
         raise UrbJaxError(f"{config_file}: the run's configs changed since it started ({diffs}; read from "
                           f"{files} and the recorded --set items). Fix: restore the files, or start a new "
                           "run with another --id.")

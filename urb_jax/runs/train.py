@@ -46,6 +46,7 @@ from urb_jax.runs.request import ResumeRequest, TrainRequest
 from urb_jax.runs.round_log import check_logger, round_log
 from urb_jax.runs.run_log import log_run_to, with_run_log
 from urb_jax.runs.setup import (
+    ALG_GIVEN_KEY,
     RunResult,
     TrainSetup,
     check_emission_source,
@@ -298,6 +299,7 @@ def _train_config(setup: TrainSetup, req: TrainRequest) -> dict[str, Any]:
                              req.drop_unroutable),
         **{f"hybrid_{k}": v for k, v in to_dict(hyb).items()}, "hybrid_config": hyb_path.stem,
         **train_names(req.alg, req.mode, hyb_path.stem, hyb.train_days, req.alg_conf),
+        ALG_GIVEN_KEY: to_dict(setup.alg_config),  # compared on resume (check_recorded_configs)
         "training_eps": None,  # the task's 200 is no train run's: the SUMO training days, set at the end
         "mode": req.mode,
         SURROGATE_KEY: surrogate_human_days(hyb, task.human_learning_episodes, req.mode != "sumo"),

@@ -23,7 +23,6 @@ deterministic: the same records). The journal goes when every folder of the run 
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
@@ -36,13 +35,20 @@ import numpy as np
 import pandas as pd
 
 from urb_jax.city.scenario import Scenario
-from urb_jax.core.atomic import write_npz
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.progress import Progress
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.humans import HumanState
 from urb_jax.reporting.metrics import PRE_WINDOW
-from urb_jax.reporting.records import EMISSION_COLUMNS, DayRecord, read_records
+from urb_jax.reporting.records import (
+    EMISSION_COLUMNS,
+    DayRecord,
+    damage_of,
+    damaged_records,
+    read_records,
+    run_config,
+    write_with_digest,
+)
 from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, MemoExecutor
 from urb_jax.sumo_bridge.batch import as_batch
 from urb_jax.surrogate import build_static, init_params, predict
@@ -165,12 +171,32 @@ def journal(executor: DayExecutor, folder: Path) -> MemoExecutor:
 
 def save_human_phase(folder: Path, human: HumanPhase) -> None:
     """human_phase.npz: the learned human state, the calibration days and, after surrogate human
-    days, the knowledge they left (atomic)."""
+    days, the knowledge they left (atomic, with its sha256 beside it: human_phase.npz.sha256)."""
     switch = {} if human.switch_humans is None else {
         f"switch_{k}": np.asarray(v) for k, v in human.switch_humans._asdict().items()}
-    write_npz(folder / HUMAN_FILE, calib_choices=human.calib_choices, calib_times=human.calib_times,
-              calib_arrived=human.calib_arrived, surrogate_means=human.surrogate_means, **switch,
-              **{f"humans_{k}": np.asarray(v) for k, v in human.humans._asdict().items()})
+    arrays = dict(calib_choices=human.calib_choices, calib_times=human.calib_times,
+                  calib_arrived=human.calib_arrived, surrogate_means=human.surrogate_means, **switch,
+                  **{f"humans_{k}": np.asarray(v) for k, v in human.humans._asdict().items()})
+    write_with_digest(folder / HUMAN_FILE, lambda tmp: _savez(tmp, arrays))
+
+
+def _savez(path: Path, arrays: dict[str, Any]) -> None:
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def check_source_files(source: Path) -> None:
+    """The files a reuse of `source`'s human phase reads (its records, its human_phase.npz) match
+    their digests (files from before digests: as they are); else a UrbJaxError naming the first."""
+    bad = damaged_records(source)
+    npz = source / HUMAN_FILE
+    if npz.is_file() and (why := damage_of(npz)) is not None:
+        bad.append(f"{npz}: {why}")
+    if bad:
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise UrbJaxError(f"{bad[0]}{more}: the human phase of {source.name} cannot be reused from damaged "
+                          "files. Fix: restore the file from a backup, reuse another run, or drop "
+                          "--human-phase-from (the run then simulates its own human phase).")
 
 
 def saved_calibration_days(folder: Path) -> SumoSample:
@@ -253,18 +279,20 @@ def _mean(x: np.ndarray, mask: np.ndarray) -> float:
 
 
 def _checked_source(source: Path, config: dict[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
-    """The source run's exp_config, after checking that `keys` agree with this run's `config`."""
+    """The source run's exp_config, after checking that `keys` agree with this run's `config` and that
+    the files the reuse reads match their digests (`check_source_files`)."""
     cfg_path = source / "exp_config.json"
     if not cfg_path.is_file():
         raise UrbJaxError(f"{cfg_path}: not found. Fix: --human-phase-from takes the experiment id of an "
                           "earlier run in --results-dir.")
-    src = json.loads(cfg_path.read_text())
+    src = run_config(source)  # checked against its digest
     diff = [f"{k} (source {src.get(k, ABSENT.get(k))!r}, this run {config.get(k)!r})" for k in keys
             if src.get(k, ABSENT.get(k)) != config.get(k)]
     if diff:
         raise UrbJaxError(f"{cfg_path}: its human phase differs from this run's: {'; '.join(diff)}. "
                           "Fix: reuse a run with the same network, configs and env seed, or drop "
                           "--human-phase-from.")
+    check_source_files(source)
     return src
 
 
