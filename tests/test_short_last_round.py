@@ -93,8 +93,9 @@ def test_the_days_trained_are_the_plan(uninterrupted, tiny_iql_confs, tmp_path, 
     plan = plan_train(TrainRequest(alg="iql", exp_id="dry", results_dir=str(tmp_path), train_days=train_days,
                                    overrides=list(CASES[case][0]), **tiny_iql_confs))
     (line,) = [x for x in describe(plan) if x.startswith("budget")]
-    assert line.endswith(f"and a last round of {ITER_DAYS * rounds[-1][0]} surrogate + {rounds[-1][1]} SUMO "
-                         f"days = {train_days:,} training days (as asked)")
+    last_sumo = f"{rounds[-1][1]} SUMO day" + ("s" if rounds[-1][1] > 1 else "")
+    assert line.endswith(f"and a last round of {ITER_DAYS * rounds[-1][0]} surrogate + {last_sumo} "
+                         f"= {train_days:,} training days (as asked)")
 
 
 def _digests(folder):

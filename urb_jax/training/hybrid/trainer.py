@@ -241,10 +241,11 @@ def budget_text(plan: RoundPlan, train_days: int) -> str:
     iteration collects 16 days, so 8 are left over)'; '... = 6,000 training days (as asked)' when it
     is exact."""
     full = plan.n_rounds if plan.is_whole else plan.n_rounds - 1
-    each = f"{plan.surrogate_days:,} surrogate + {plan.sumo_days:,} SUMO days"
+    each = f"{plan.surrogate_days:,} surrogate + {_days(plan.sumo_days, 'SUMO day')}"
     parts = [f"{full} round{'s' if full > 1 else ''} of {each}"] if full else []
     if not plan.is_whole:
-        last = f"{plan.surrogate_days_of(plan.n_rounds - 1):,} surrogate + {plan.last_sumo_days:,} SUMO days"
+        last = (f"{plan.surrogate_days_of(plan.n_rounds - 1):,} surrogate + "
+                f"{_days(plan.last_sumo_days, 'SUMO day')}")
         parts.append(f"a last round of {last}" if full else f"1 round of {last}")
     total = plan.total_days
     text = f"{' and '.join(parts)} = {total:,} training days"
@@ -254,6 +255,11 @@ def budget_text(plan: RoundPlan, train_days: int) -> str:
         return f"{text} ({train_days:,} asked; rounds were whole, so the budget was rounded up)"
     return (f"{text} ({train_days:,} asked; a learner iteration collects {plan.iter_days:,} days, so "
             f"{train_days - total:,} are left over)")
+
+
+def _days(n: int, what: str) -> str:
+    """'1 SUMO day', '1,200 SUMO days': the budget line reads as a sentence."""
+    return f"{n:,} {what}{'' if n == 1 else 's'}"
 
 
 def _slow_hint(alg: str, alg_config: AlgoConfig) -> str:
