@@ -44,6 +44,23 @@ def test_one_iteration_gives_the_estimate_and_the_hint_when_slow():
     assert len(notes) == 2
 
 
+def test_the_estimate_counts_the_short_last_round():
+    """A budget that is not whole rounds: the last round's 3 iterations, not 10, in what is left."""
+    t, notes = FakeTime(), []
+    clock = IterationClock(n_iters=10, n_rounds=4, note=notes.append, clock=t, last_iters=3)
+    assert [clock.iters_of(r) for r in range(4)] == [10, 10, 10, 3]
+    clock.start_round(2)
+    clock(0)
+    t.now = 100.0
+    clock(1)  # 100 s an iteration; rounds 3 and 4 left: 13 iterations, 1,300 s
+    assert "the 2 round(s) left about 21.7 min" in notes[0]
+    clock.start_round(3)
+    clock(0)
+    t.now += LINE_EVERY_S
+    clock(1)
+    assert "surrogate iteration 1/3" in notes[1]
+
+
 def test_chunks_cut_a_round_into_equal_parts():
     assert [chunk_len(n) for n in (1, 2, 8, 16, 40, 37, 19, 64, 100)] == [1, 1, 1, 2, 5, 1, 1, 8, 10]
     for n in range(1, 200):

@@ -77,13 +77,12 @@ def _snapshot_rows(g: Group, r: int, executor: DayExecutor, tmp: Path, progress:
     meta, aon = checkpoint_test_phase(g, r, executor, writers, progress)
     for writer in writers:
         writer.close()
-    per_round = g.plan.surrogate_days + g.plan.sumo_days
     rows = []
     for seed, d in zip(g.seeds, seed_dirs, strict=True):
         with warnings.catch_warnings():  # no pre-CAV or training days here: their means are empty
             warnings.simplefilter("ignore", RuntimeWarning)
             metrics = compute_metrics(read_records(d), 0, 0)  # every recorded day is a test day
-        rows.append({"seed": seed, "round": r, "training_days": r * per_round,
+        rows.append({"seed": seed, "round": r, "training_days": g.plan.days_through(r),
                      "sumo_training_days": meta.sumo_days,
                      "wall_s": float("nan") if meta.wall_s is None else meta.wall_s,
                      **{m: metrics[m] for m in SNAPSHOT_METRICS},

@@ -68,9 +68,16 @@ def _pace(results_dir: Path, label: str, group: list[str]) -> _Pace | None:
 
 
 def _per_round(rows: list[dict[str, Any]]) -> float:
-    """Mean seconds a round (its surrogate leg and SUMO days) over rounds.csv rows; a SUMO-only
-    run's rows have no surrogate leg."""
-    return sum(row.get("surrogate_s", 0.0) + row["sumo_s"] for row in rows) / len(rows)
+    """Mean seconds a round (its surrogate leg and SUMO days) over rounds.csv rows; a leg a round
+    did not run (a SUMO-only run's surrogate leg, a short last round without an iteration: missing,
+    or NaN in rounds.csv) counts 0."""
+    return sum(_seconds(row, "surrogate_s") + _seconds(row, "sumo_s") for row in rows) / len(rows)
+
+
+def _seconds(row: dict[str, Any], key: str) -> float:
+    """A leg's seconds in a rounds row; 0 where the round did not run the leg."""
+    value = row.get(key)
+    return 0.0 if value is None or value != value else float(value)  # value != value: NaN
 
 
 def _group_progress(results_dir: Path, group: list[str], pace: _Pace | None) -> tuple[str, float | None]:

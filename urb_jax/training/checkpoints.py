@@ -96,6 +96,9 @@ class RoundMeta:
     # the group's wall seconds when it was written, earlier processes' included, so a run killed
     # outright (no exp_config write) still counts them on resume (None: from before the key)
     wall_s: float | None = None
+    # the group's last round [surrogate iterations, SUMO days]: a budget that is not whole rounds ends
+    # with a shorter one (None: a checkpoint from before the key, when every round was whole)
+    last_round: list[int] | None = None
 
 
 def latest_checkpoint(folder: Path) -> tuple[int, Path] | None:
@@ -216,7 +219,7 @@ def restore_round(folder: Path, target: Any, seeds: Sequence[int], rounds_done: 
                for i in range(len(seeds))]
     return state, samples, RoundMeta(rounds_done, meta["sumo_days"], list(seeds), meta.get("folders", []),
                                      meta["record_parts"], meta["rounds"], meta.get("rounds_total"),
-                                     meta.get("wall_s"))
+                                     meta.get("wall_s"), meta.get("last_round"))
 
 
 def checkpoint_meta(folder: Path) -> dict[str, Any] | None:

@@ -15,7 +15,8 @@ the executor as one batch. Phases (one results folder per training seed, URB lay
    (`urb_jax.training.checkpoints`);
 4. test: `test_eps` SUMO days with frozen (greedy) policies.
 
-Budget: `train_days` URB-equivalent training days = surrogate env-days + SUMO training days.
+Budget: `train_days` URB-equivalent training days = surrogate env-days + SUMO training days,
+never more: full rounds, then a shorter last round of what is left (`plan.RoundPlan`).
 Records hold SUMO days only (column sumo=True); surrogate days are summarised per round in
 `rounds.csv`, so every metric and t_train come from SUMO days. Every random choice of round r
 flows from fold_in(PRNGKey(seed), r) and the checkpointed state, so `--resume` after a kill

@@ -40,11 +40,14 @@ def fmt_duration(seconds: float) -> str:
 
 class IterationClock:
     """Called with the iteration index i as each chunk of a round's iterations starts, and with the
-    round's iteration count when it ends (a repeated index is ignored)."""
+    round's iteration count when it ends (a repeated index is ignored). `n_iters` a full round's
+    iterations; `last_iters` the last round's (a budget that is not whole rounds), default n_iters."""
 
     def __init__(self, n_iters: int, n_rounds: int, hint: str = "",
-                 note: Callable[[str], None] = print, clock: Callable[[], float] = time.monotonic) -> None:
+                 note: Callable[[str], None] = print, clock: Callable[[], float] = time.monotonic,
+                 last_iters: int | None = None) -> None:
         self.n_iters, self.n_rounds, self.hint = n_iters, n_rounds, hint
+        self.last_iters = n_iters if last_iters is None else last_iters
         self.note, self.clock = note, clock
         self.round = 0
         self.estimated = False
@@ -52,6 +55,14 @@ class IterationClock:
 
     def start_round(self, r: int) -> None:
         self.round, self._seen = r, -1
+
+    def iters_of(self, r: int) -> int:
+        """Round r's iterations (the last round's may be fewer)."""
+        return self.last_iters if r == self.n_rounds - 1 else self.n_iters
+
+    def iters_left(self) -> int:
+        """The iterations of this round and the rounds after it."""
+        return sum(self.iters_of(r) for r in range(self.round, self.n_rounds))
 
     def __call__(self, i: int) -> None:
         if i <= self._seen:
@@ -64,10 +75,10 @@ class IterationClock:
         if not self.estimated:
             self.estimated = True
             self.note(self.estimate(per_iter))
-        elif now - self._last >= LINE_EVERY_S and i < self.n_iters:
+        elif now - self._last >= LINE_EVERY_S and i < (n := self.iters_of(self.round)):
             self._last = now
-            left = fmt_duration(per_iter * (self.n_iters - i))
-            self.note(f"round {self.round + 1}/{self.n_rounds}: surrogate iteration {i}/{self.n_iters}, "
+            left = fmt_duration(per_iter * (n - i))
+            self.note(f"round {self.round + 1}/{self.n_rounds}: surrogate iteration {i}/{n}, "
                       f"{fmt_duration(per_iter)} each, round ETA {left}")
 
     def before_training(self, per_iter: float, envs: int) -> None:
@@ -79,7 +90,7 @@ class IterationClock:
     def estimate(self, per_iter: float, head: str = "estimate") -> str:
         """The surrogate training's cost on this machine, from one measured iteration."""
         rounds_left = self.n_rounds - self.round
-        total = per_iter * self.n_iters * rounds_left
+        total = per_iter * self.iters_left()
         text = (f"{head}: one surrogate iteration takes {fmt_duration(per_iter)} here, so a round's "
                 f"{self.n_iters} iterations take about {fmt_duration(per_iter * self.n_iters)} and the "
                 f"{rounds_left} round(s) left about {fmt_duration(total)} (plus their SUMO days)")

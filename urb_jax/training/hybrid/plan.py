@@ -102,10 +102,64 @@ def load_hybrid(name: str = "default", overrides: Sequence[Override] = ()) -> Lo
 
 
 class RoundPlan(NamedTuple):
+    """The rounds `train_days` buys: full rounds while they fit, then a last round of what is left.
+
+    The paper trains exactly `train_days`, and a learner must never get more experience than the
+    paper's, so the last round is cut short (fewer SUMO days, fewer or no surrogate iterations)
+    rather than the budget rounded up to whole rounds. Rounds are counted from 0 here."""
+
     n_rounds: int
-    iters: int  # learner iterations on the surrogate per round
-    surrogate_days: int  # surrogate env-days per round
-    sumo_days: int  # SUMO training days per round (per seed)
+    iters: int  # learner iterations on the surrogate per full round
+    surrogate_days: int  # surrogate env-days per full round
+    sumo_days: int  # SUMO training days per full round (per seed)
+    last_iters: int  # the last round's learner iterations (== iters when the budget divides)
+    last_sumo_days: int  # the last round's SUMO days (== sumo_days when the budget divides)
+    iter_days: int  # env-days one learner iteration collects (days_per_iter x num_envs); 0: mode sumo
+
+    def iters_of(self, r: int) -> int:
+        """Round r's learner iterations on the surrogate."""
+        return self.last_iters if r == self.n_rounds - 1 else self.iters
+
+    def sumo_days_of(self, r: int) -> int:
+        """Round r's SUMO training days (per seed)."""
+        return self.last_sumo_days if r == self.n_rounds - 1 else self.sumo_days
+
+    def surrogate_days_of(self, r: int) -> int:
+        """Round r's surrogate env-days."""
+        return self.iters_of(r) * self.iter_days
+
+    def days_through(self, r: int) -> int:
+        """Training days (surrogate + SUMO) of the first r rounds: where round r starts."""
+        full = min(r, self.n_rounds - 1)
+        last = self.last_iters * self.iter_days + self.last_sumo_days if r >= self.n_rounds else 0
+        return full * (self.surrogate_days + self.sumo_days) + last
+
+    def sumo_days_through(self, r: int) -> int:
+        """SUMO training days (per seed) of the first r rounds."""
+        return min(r, self.n_rounds - 1) * self.sumo_days + (self.last_sumo_days if r >= self.n_rounds else 0)
+
+    @property
+    def total_iters(self) -> int:
+        """Learner iterations on the surrogate over the whole training."""
+        return (self.n_rounds - 1) * self.iters + self.last_iters
+
+    @property
+    def total_surrogate_days(self) -> int:
+        return self.total_iters * self.iter_days
+
+    @property
+    def total_sumo_days(self) -> int:
+        return self.sumo_days_through(self.n_rounds)
+
+    @property
+    def total_days(self) -> int:
+        """The training days the run trains (surrogate env-days + SUMO days, per seed)."""
+        return self.days_through(self.n_rounds)
+
+    @property
+    def is_whole(self) -> bool:
+        """Every round is a full round (the budget is a whole number of rounds)."""
+        return (self.last_iters, self.last_sumo_days) == (self.iters, self.sumo_days)
 
 
 def iters_per_round(cfg: HybridConfig, days_per_iter: int, mode: str) -> int:
@@ -116,32 +170,59 @@ def iters_per_round(cfg: HybridConfig, days_per_iter: int, mode: str) -> int:
 
 
 def plan_rounds(cfg: HybridConfig, mode: str, days_per_iter: int) -> RoundPlan:
-    """Rounds of surrogate iterations and SUMO days that spend `train_days`."""
+    """Rounds of surrogate iterations and SUMO days that spend `train_days` and no more: full rounds
+    while they fit, then a last round of min(SUMO days a round, what is left) SUMO days and as many
+    whole iterations as fit in the rest. The total is `train_days` where an iteration's size lets
+    it, else the largest total below it (short by less than one iteration)."""
     iters = iters_per_round(cfg, days_per_iter, mode)
-    sur = iters * days_per_iter * cfg.num_envs
+    iter_days = days_per_iter * cfg.num_envs if iters else 0
+    sur = iters * iter_days
     sumo = cfg.sumo_days_per_round if mode != "surrogate" else 0
-    return RoundPlan(max(1, math.ceil(cfg.train_days / max(sur + sumo, 1))), iters, sur, sumo)
+    if sur + sumo == 0:
+        raise ConfigError(f"mode {mode} with key 'sumo_days_per_round' 0: a round would train on nothing. "
+                          "Fix: make sumo_days_per_round positive, or use --mode hybrid.")
+    full, left = divmod(cfg.train_days, sur + sumo)
+    last_sumo = min(sumo, left)
+    last_iters = (left - last_sumo) // iter_days if iter_days else 0
+    if last_iters or last_sumo:
+        return RoundPlan(full + 1, iters, sur, sumo, last_iters, last_sumo, iter_days)
+    if full == 0:
+        raise ConfigError(f"train_days {cfg.train_days:,} buys no learner iteration (one collects "
+                          f"{iter_days:,} days: {days_per_iter} days in each of {cfg.num_envs} envs) and no "
+                          f"SUMO day. Fix: --train-days {iter_days} or more, or fewer num_envs.")
+    return RoundPlan(full, iters, sur, sumo, iters, sumo, iter_days)
+
+
+def whole_rounds(plan: RoundPlan, n_rounds: int) -> RoundPlan:
+    """`plan`'s full rounds, `n_rounds` of them: the plan of a run checkpointed before the last round
+    could be short (the budget was rounded up to whole rounds), which its resume keeps."""
+    return plan._replace(n_rounds=n_rounds, last_iters=plan.iters, last_sumo_days=plan.sumo_days)
 
 
 def kept_rounds(cfg: HybridConfig, plan: RoundPlan) -> frozenset[int]:
     """The rounds whose checkpoints `keep_checkpoints_at` keeps: the first to reach each day count."""
-    per_round = plan.surrogate_days + plan.sumo_days
-    return frozenset(min(plan.n_rounds, math.ceil(d / per_round)) for d in cfg.keep_checkpoints_at)
+    return frozenset(min((r for r in range(plan.n_rounds + 1) if plan.days_through(r) >= d),
+                         default=plan.n_rounds) for d in cfg.keep_checkpoints_at)
 
 
-def learner_for(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, n_rounds: int,
-                mode: str, n_iters_round: int = 1) -> tuple[Learner, AlgoConfig]:
+def learner_for(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, plan: RoundPlan | None,
+                mode: str) -> tuple[Learner, AlgoConfig]:
     """The algorithm's learner with num_envs and schedule lengths fitted to the hybrid budget:
-    epsilon schedules (linear over n_iters, or IQL*'s per-update decay) end where URB's end."""
+    epsilon schedules (linear over n_iters, or IQL*'s per-update decay) end where URB's end, over the
+    iterations and updates `plan` trains (its short last round included). `plan` None: one round
+    of one iteration (the learner's size only, e.g. its days per iteration, before the plan)."""
     fields = {f.name for f in dataclasses.fields(alg_config)}
     by_name: Any = alg_config  # the fields read below are checked by name (`fields`), not by type
     upd: dict[str, Any] = {"num_envs": cfg.num_envs}
-    sumo_updates = cfg.sumo_updates if mode != "surrogate" else 0
+    n_rounds, total_iters = (1, 1) if plan is None else (plan.n_rounds, plan.total_iters)
+    # a round's SUMO updates, every round (a short last round has at least one SUMO day); counted
+    # with sumo_days_per_round 0 too, as before, so such a run's schedules are unchanged
+    sumo_updates = n_rounds * (cfg.sumo_updates if mode != "surrogate" else 0)
     if "agent_frames_per_batch" in fields:  # TorchRL family: epsilon schedules span n_iters iterations
         per_iter = by_name.agent_frames_per_batch
-        upd["n_iters"] = max(1, math.ceil(n_rounds * (n_iters_round * per_iter + sumo_updates) / per_iter))
+        upd["n_iters"] = max(1, math.ceil((total_iters * per_iter + sumo_updates) / per_iter))
     if "eps_decay" in fields:  # IQL*: URB decays once per update over num_episodes updates
-        updates = max(1, n_rounds * (n_iters_round + sumo_updates))
+        updates = max(1, total_iters + sumo_updates)
         upd["eps_decay"] = float(by_name.eps_decay ** (by_name.num_episodes / updates))
     alg_config = dataclasses.replace(alg_config, **upd)
     return algorithm(alg).make_learner(alg_config, env), alg_config

@@ -12,6 +12,7 @@ import dataclasses
 import functools
 import json
 import logging
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -50,6 +51,7 @@ from urb_jax.surrogate.model import Static
 from urb_jax.training.checkpoints import (
     CKPT_DIR,
     RoundMeta,
+    checkpoint_meta,
     damaged_files,
     kept_checkpoints,
     latest_checkpoint,
@@ -69,6 +71,7 @@ from urb_jax.training.hybrid.plan import (
     kept_rounds,
     learner_for,
     plan_rounds,
+    whole_rounds,
 )
 from urb_jax.training.protocol import PHASE_TEST, PHASE_TRAIN
 
@@ -160,14 +163,15 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     p0 = uncalibrated(static)
     given = alg_config  # the hint and the probe's learner start from it: fitting changes it
     plan = _plan(alg, given, env, cfg, mode)
-    learner, alg_config = learner_for(alg, given, env, cfg, plan.n_rounds, mode, plan.iters)
+    if humans is None:  # a resume (or a run's snapshots): the plan its checkpoints were trained to
+        plan = resumed_plan(folders[0], plan, cfg.train_days)
+    learner, alg_config = learner_for(alg, given, env, cfg, plan, mode)
     n_real = 1 if task.should_humans_adapt else cfg.sumo_days_per_round
-    clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg, given))
+    clock = IterationClock(plan.iters, plan.n_rounds, _slow_hint(alg, given), last_iters=plan.last_iters)
     shapes = jax.eval_shape(learner.init, jax.random.PRNGKey(0))  # one seed's runner, no memory
     probe = None
     if plan.iters and needs_probe(shapes.params):
-        one, _ = learner_for(alg, given, env, dataclasses.replace(cfg, num_envs=1), plan.n_rounds, mode,
-                             plan.iters)
+        one, _ = learner_for(alg, given, env, dataclasses.replace(cfg, num_envs=1), plan, mode)
         probe = functools.partial(probe_seconds, one, jax.random.PRNGKey(0))
     memory_note = check_fits(shapes, len(seeds), f"{alg} on {scn.name}")
     seed_map = maps_seeds(cfg.seed_axis, shapes.params)
@@ -182,7 +186,34 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
 
 def _plan(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, mode: str) -> RoundPlan:
     """The rounds the budget buys, from the learner's days per iteration on `env`."""
-    return plan_rounds(cfg, mode, learner_for(alg, alg_config, env, cfg, 1, mode)[0].days_per_iter)
+    return plan_rounds(cfg, mode, learner_for(alg, alg_config, env, cfg, None, mode)[0].days_per_iter)
+
+
+def resumed_plan(folder: Path, plan: RoundPlan, train_days: int) -> RoundPlan:
+    """The plan of the run whose checkpoints are in `folder` (a group's first), recomputed from the
+    run's configs (`plan`) and checked against what its newest checkpoint recorded: a resume must
+    finish the rounds the run started. A checkpoint from before the last round could be short (no
+    `last_round` key) had whole rounds, the budget rounded up: its run keeps them. No checkpoint: `plan`."""
+    meta = checkpoint_meta(folder)
+    if meta is None:
+        return plan
+    last = meta.get("last_round")
+    if last is None:  # whole rounds, as many as recorded (before `rounds_total`: as then planned)
+        total = meta.get("rounds_total") or math.ceil(train_days / (plan.surrogate_days + plan.sumo_days))
+        recorded = whole_rounds(plan, int(total))
+        if recorded != plan:
+            log.warning("this run was started by a version that trained whole rounds: it finishes as it "
+                        "started, %s; a new run trains %s", budget_text(recorded, train_days),
+                        budget_text(plan, train_days))
+        return recorded
+    recorded = plan._replace(n_rounds=int(meta["rounds_total"]), last_iters=int(last[0]),
+                             last_sumo_days=int(last[1]))
+    if recorded != plan:
+        raise UrbJaxError(f"{folder}: the run's checkpoints were trained to "
+                          f"{budget_text(recorded, train_days)}; its configs now plan "
+                          f"{budget_text(plan, train_days)}. Fix: resume with the "
+                          "version of urb-jax that started the run, or start it again with --overwrite.")
+    return plan
 
 
 def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: int, humans: HumanState | None
@@ -206,13 +237,30 @@ def budget_plan(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
 
 
 def budget_text(plan: RoundPlan, train_days: int) -> str:
-    """'10 rounds of 608 surrogate + 16 SUMO days = 6,240 training days (6,000 asked; rounds are
-    whole, so the budget is rounded up)', or '... = 6,000 training days' when it divides."""
-    total = plan.n_rounds * (plan.surrogate_days + plan.sumo_days)
-    text = (f"{plan.n_rounds} round(s) of {plan.surrogate_days:,} surrogate + {plan.sumo_days:,} SUMO days "
-            f"= {total:,} training days")
-    return text if total == train_days else \
-        f"{text} ({train_days:,} asked; rounds are whole, so the budget is rounded up)"
+    """The plan in words, with the total trained and the total asked, e.g. '9 rounds of 640 surrogate
+    + 4 SUMO days and a last round of 192 + 4 = 5,992 training days (6,000 asked; a learner
+    iteration collects 16 days, so 8 are left over)'; '... = 6,000 training days (as asked)' when it
+    is exact."""
+    full = plan.n_rounds if plan.is_whole else plan.n_rounds - 1
+    each = f"{plan.surrogate_days:,} surrogate + {_days(plan.sumo_days, 'SUMO day')}"
+    parts = [f"{full} round{'s' if full > 1 else ''} of {each}"] if full else []
+    if not plan.is_whole:
+        last = (f"{plan.surrogate_days_of(plan.n_rounds - 1):,} surrogate + "
+                f"{_days(plan.last_sumo_days, 'SUMO day')}")
+        parts.append(f"a last round of {last}" if full else f"1 round of {last}")
+    total = plan.total_days
+    text = f"{' and '.join(parts)} = {total:,} training days"
+    if total == train_days:
+        return f"{text} (as asked)"
+    if plan.is_whole and total > train_days:  # a plan recorded by a version that trained whole rounds
+        return f"{text} ({train_days:,} asked; rounds were whole, so the budget was rounded up)"
+    return (f"{text} ({train_days:,} asked; a learner iteration collects {plan.iter_days:,} days, so "
+            f"{train_days - total:,} are left over)")
+
+
+def _days(n: int, what: str) -> str:
+    """'1 SUMO day', '1,200 SUMO days': the budget line reads as a sentence."""
+    return f"{n:,} {what}{'' if n == 1 else 's'}"
 
 
 def _slow_hint(alg: str, alg_config: AlgoConfig) -> str:
@@ -320,7 +368,7 @@ class HybridTrainer:
         g = self.g
         meta = RoundMeta(rounds_done, self.sumo_done, list(g.seeds), [f.name for f in g.folders],
                          [w.n_parts for w in self.writers], self.rounds_logs, g.plan.n_rounds,
-                         round(self.elapsed(), 2))
+                         round(self.elapsed(), 2), [g.plan.last_iters, g.plan.last_sumo_days])
         save_round(g.folders[0], self.state._asdict(), self.samples, meta, kept_rounds(g.cfg, g.plan))
 
     def set_params(self) -> None:
@@ -339,12 +387,15 @@ class HybridTrainer:
         rows: list[Row] = [{"round": r + 1} for _ in g.seeds]
         g.clock.start_round(r)
         where = f"round {r + 1} of {g.plan.n_rounds}"
-        if g.plan.surrogate_days:
+        if g.plan.iters_of(r):
             enter_phase(f"{where}: the surrogate leg")
-            self.surrogate_leg(k_sur, rows)
-        if g.plan.sumo_days:
+            self.surrogate_leg(k_sur, rows, g.plan.iters_of(r))
+        elif g.plan.iters:  # a short last round with no whole iteration left: says so in rounds.csv
+            for row in rows:
+                row["surrogate_days"] = 0
+        if g.plan.sumo_days_of(r):
             enter_phase(f"{where}: the SUMO leg (SUMO days, updates, refit)")
-            self.sumo_leg(r, k_act, k_step, k_upd, rows)
+            self.sumo_leg(r, k_act, k_step, k_upd, rows, g.plan.sumo_days_of(r))
         enter_phase(f"{where}: the checkpoint")
         check_learner(self.state.runner.params, rows, r, g.seeds)  # a diverged learner: no checkpoint
         for log, row in zip(self.rounds_logs, rows, strict=True):
@@ -353,11 +404,14 @@ class HybridTrainer:
             writer.flush()
         self.checkpoint(r + 1)
 
-    def surrogate_leg(self, k_sur: jax.Array, rows: list[Row]) -> None:
-        """The round's learner iterations on the surrogate envs (chunks of one vmapped lax.scan)."""
-        g, days = self.g, self.g.plan.surrogate_days
+    def surrogate_leg(self, k_sur: jax.Array, rows: list[Row], n_iters: int) -> None:
+        """The round's `n_iters` learner iterations on the surrogate envs (chunks of one vmapped
+        lax.scan). A short last round takes the first n_iters of a full round's keys."""
+        g, days = self.g, n_iters * self.g.plan.iter_days
         t0 = time.perf_counter()
         keys = g.fns.iter_keys(k_sur)  # [S, iters, 2]
+        if n_iters < keys.shape[1]:
+            keys = keys[:, :n_iters]
         if g.adapt:  # adapting humans: the population lives the round's days too
             pop = jax.tree_util.tree_map(lambda x: x[:, 0], self.state.real)
             (runner, pop), m = run_chunks(g.fns.sur_round_adapt, (self.state.runner, pop), keys, g.clock,
@@ -381,50 +435,59 @@ class HybridTrainer:
                         sur_tCAV=float(m["time_cav"].mean()), sur_tHDV=float(m["time_human"].mean()))
 
     def sumo_leg(self, r: int, k_act: jax.Array, k_step: jax.Array, k_upd: jax.Array,
-                 rows: list[Row]) -> None:
-        """P SUMO days per seed played by the exploring policies, updates on them, their records,
-        then (mode hybrid) the refit."""
+                 rows: list[Row], p: int) -> None:
+        """p <= P SUMO days per seed (p < P: a short last round) played by the exploring policies,
+        updates on them, their records, then (mode hybrid) the refit."""
         g = self.g
         t0 = time.perf_counter()
-        choices, results, times, days, loss = self.play_sumo_days(k_act, k_step, k_upd)
+        choices, results, times, days, loss = self.play_sumo_days(k_act, k_step, k_upd, p)
         pred = np.asarray(g.fns.predict_days(self.state.params, jnp.asarray(choices)))  # before the refit
         for i in range(g.S):
-            res_i = results[i * g.P:(i + 1) * g.P]
+            res_i = results[i * p:(i + 1) * p]
             if g.mode == "hybrid":  # only the refit reads them: other modes' checkpoints stay bounded
                 self.samples[i] = self.samples[i] + SumoSample.from_days(choices[i], res_i)
             record_days(self.writers[i], g.H + self.sumo_done, PHASE_TRAIN, choices[i], g.is_cav, res_i,
                         _take(days, i), g.cav_index)
-        self.sumo_done += g.P
+        self.sumo_done += p
         if g.mode == "hybrid":
             self.refit(r)
         dt = time.perf_counter() - t0
         for i, row in enumerate(rows):
-            row |= sumo_row(times[i], pred[i], g.P, dt, g.is_cav, g.cav_index)
+            row |= sumo_row(times[i], pred[i], p, dt, g.is_cav, g.cav_index)
             if loss is not None:  # the loss of the updates on these SUMO days
                 row["sumo_loss"] = float(loss[i])
-        self.bar.update(g.S * g.P, self.tag + "train/SUMO", sumo_days_s=g.S * g.P / dt,
+        self.bar.update(g.S * p, self.tag + "train/SUMO", sumo_days_s=g.S * p / dt,
                         sumo_tCAV=float(np.mean([row["sumo_time_cav"] for row in rows])),
                         sumo_tHDV=float(np.mean([row["sumo_time_hdv"] for row in rows])))
 
-    def play_sumo_days(self, k_act: jax.Array, k_step: jax.Array, k_upd: jax.Array
+    def play_sumo_days(self, k_act: jax.Array, k_step: jax.Array, k_upd: jax.Array, p: int
                        ) -> tuple[np.ndarray, list[DayResult], np.ndarray, Day, np.ndarray | None]:
-        """(choices [S, P, N], SUMO results [S * P] seed-major, times [S, P, N], days [S, 1, P, ...],
-        the updates' mean loss [S] or None): the real humans advance by SUMO's times, then
-        `sumo_updates` updates. Frozen humans: the
-        S x P days go to the executor as one batch; adapting humans: the population lives the P
-        days in order, S days (one per seed) at a time."""
+        """(choices [S, p, N], SUMO results [S * p] seed-major, times [S, p, N], days [S, 1, p, ...],
+        the updates' mean loss [S] or None) for p <= P days a seed: the real humans advance by SUMO's
+        times, then `sumo_updates` updates. Frozen humans: the S x p days go to the executor as one
+        batch (p < P: the first p of the P copies play, the others stay as they were); adapting
+        humans: the population lives the p days in order, S days (one per seed) at a time. Day d
+        has the keys it has in a full round."""
         g, s = self.g, self.state
         R = g.R
         keys_act, keys_step = g.fns.split_p(k_act), g.fns.split_p(k_step)  # [S, P, 2]
         real, parts = s.real, []
-        for c in range(0, g.P, R):
+        for c in range(0, p, R):
+            b = min(R, p - c)  # days played of the R copies
+            before = real
             choices, results, times, real, days = self.sumo_days(
-                g.fns.act_explore, keys_act[:, c:c + R], keys_step[:, c:c + R], real, R, self.executor)
+                g.fns.act_explore, keys_act[:, c:c + R], keys_step[:, c:c + R], real, b, self.executor)
+            if b < R:  # only the copies that played a day moved on
+                real = jax.tree_util.tree_map(lambda new, old, b=b: jnp.concatenate(
+                    [new[:, :b], old[:, b:]], axis=1), real, before)
+                times = times[:, :b]
+                days = jax.tree_util.tree_map(lambda x, b=b: x[:, :, :b], days)
             parts.append((choices, results, times, days))
-        choices = np.concatenate([p[0] for p in parts], axis=1)
-        results = [res for i in range(g.S) for p in parts for res in p[1][i * R:(i + 1) * R]]
-        times = np.concatenate([p[2] for p in parts], axis=1)
-        days = jax.tree_util.tree_map(lambda *x: jnp.concatenate(x, axis=2), *[p[3] for p in parts])
+        choices = np.concatenate([x[0] for x in parts], axis=1)
+        results = [res for i in range(g.S) for x in parts
+                   for res in x[1][i * x[0].shape[1]:(i + 1) * x[0].shape[1]]]
+        times = np.concatenate([x[2] for x in parts], axis=1)
+        days = jax.tree_util.tree_map(lambda *x: jnp.concatenate(x, axis=2), *[x[3] for x in parts])
         runner, losses = s.runner, []
         for u in range(g.cfg.sumo_updates):
             runner, m = g.fns.update(runner, days, jax.vmap(lambda k, u=u: jax.random.fold_in(k, u))(k_upd))
@@ -498,7 +561,7 @@ class HybridTrainer:
         self.state = s._replace(real=real)
         for i in range(g.S):
             days_i = jax.tree_util.tree_map(lambda x, b=b, i=i: x[i, :, :b], days)
-            record_days(self.writers[i], g.H + g.plan.n_rounds * g.plan.sumo_days + start_day, PHASE_TEST,
+            record_days(self.writers[i], g.H + g.plan.total_sumo_days + start_day, PHASE_TEST,
                         choices[i], g.is_cav, results[i * b:(i + 1) * b], days_i, g.cav_index)
         self.bar.update(g.S * b, self.tag + "test/SUMO", sumo_tCAV=float(
             times[:, :b][..., g.cav_index].mean()) if g.cav_index.size else 0.0)
@@ -506,8 +569,8 @@ class HybridTrainer:
 
     def summaries(self, aon: dict[str, float]) -> list[TrainSummary]:
         g, plan = self.g, self.g.plan
-        return [TrainSummary(log, g.H, plan.n_rounds * plan.sumo_days, plan.n_rounds,
-                             plan.n_rounds * plan.surrogate_days, dataclasses.asdict(g.alg_config), g.S, aon,
+        return [TrainSummary(log, g.H, plan.total_sumo_days, plan.n_rounds,
+                             plan.total_surrogate_days, dataclasses.asdict(g.alg_config), g.S, aon,
                              "map" if g.seed_map else "vmap")
                 for log in self.rounds_logs]
 
@@ -532,8 +595,8 @@ def train_group(
                     human.humans if human is not None else None)
     writers = [RecordsWriter(f, scn.agent_id, scn.agent_od, scn.agent_depart, flush_every=10**9,
                              emissions=cfg.emissions) for f in folders]
-    plan, per_round = g.plan, g.plan.surrogate_days + g.plan.sumo_days
-    bar = Progress(g.S * (g.H + plan.n_rounds * per_round + g.E), progress)
+    plan = g.plan
+    bar = Progress(g.S * (g.H + plan.total_days + g.E), progress)
     g.clock.note = bar.note
     found = None if human is not None else latest_checkpoint(folders[0])  # None: resume() says why
     first = 0 if found is None else found[0]
@@ -545,7 +608,7 @@ def train_group(
         g.clock.before_training(g.probe() * g.S * cfg.num_envs, g.S * cfg.num_envs)
     trainer = HybridTrainer(g, executor, writers, bar, elapsed)
     start = trainer.start(human) if human is not None else trainer.resume()
-    bar.skip(g.S * (g.H + start * per_round), trainer.tag + ("resume" if human is None else "human"))
+    bar.skip(g.S * (g.H + plan.days_through(start)), trainer.tag + ("resume" if human is None else "human"))
     if on_round is not None:  # a resumed group's restored rounds first
         for r in range(start):
             on_round([log[r] for log in trainer.rounds_logs])
