@@ -30,7 +30,7 @@ from urb_jax.core.interrupt import ignore_stop_signals
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.sumo_bridge.keys import sumo_version
 from urb_jax.sumo_bridge.logs import log_folder, log_tail, redirect_fds
-from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, schedule_days
+from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, memory_error_text, schedule_days
 from urb_jax.sumo_bridge.sim import Simulator
 from urb_jax.sumo_bridge.types import DayResult
 
@@ -63,17 +63,9 @@ def _serve_days(conn: Connection, sim: Simulator) -> None:
         except (BrokenPipeError, ConnectionResetError):
             raise  # the parent is gone
         except MemoryError:
-            conn.send(("oom", tid, _memory_error_text()))
+            conn.send(("oom", tid, memory_error_text()))
         except Exception:
             conn.send(("err", tid, traceback.format_exc()))
-
-
-def _memory_error_text() -> str:
-    """The MemoryError's traceback, or its name where formatting it needs memory there is not."""
-    try:
-        return traceback.format_exc()
-    except MemoryError:
-        return "MemoryError"
 
 
 class _Worker:

@@ -7,7 +7,8 @@ travel through Ray's object store, so nodes need not share a filesystem: the net
 over the actors by `scheduler.schedule_days` (the pool's retry loop) and come back in the order
 asked. An actor that dies, raises, or exceeds the per-day timeout is killed and replaced and its
 day retried once; a second failure raises `SumoDayError` naming the day, the seed and the actor's
-log. Ray is imported only here and only
+log, or `SumoOutOfMemoryError` where memory ran out (a MemoryError the actor sent back, or a task
+Ray's memory monitor killed), as the pool does. Ray is imported only here and only
 when a `RayExecutor` is built (install it with `pip install 'urb-jax[ray]'`).
 """
 
@@ -26,7 +27,7 @@ import tempfile
 import traceback
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -35,7 +36,7 @@ from urb_jax.core.errors import UrbJaxError
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.sumo_bridge.keys import scenario_key, sumo_version
 from urb_jax.sumo_bridge.logs import log_folder, log_tail
-from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, schedule_days
+from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, memory_error_text, schedule_days
 from urb_jax.sumo_bridge.sim import Simulator
 from urb_jax.sumo_bridge.types import DayResult
 
@@ -129,6 +130,8 @@ class SumoActor:
                 self.scenarios[key] = dataclasses.replace(scn, net_file=str(net))
             scn = self.scenarios[key]
             return "ok", self.sim.run_day(scn, choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
+        except MemoryError:
+            return "oom", memory_error_text()
         except Exception:
             return "err", f"{traceback.format_exc()}\n--- SUMO log tail ({self.log_path}) ---\n" \
                           f"{log_tail(self.log_path)}"
@@ -276,12 +279,16 @@ class RayExecutor:
             who = f"actor {s.index} (pid {s.pid})"
             try:
                 kind, res = ray.get(s.ref)
+            except ray.exceptions.OutOfMemoryError as exc:  # Ray's memory monitor killed the task
+                out[s.index] = self._failed(s, f"{who} ran out of memory (Ray's memory monitor): "
+                                               f"{_first_line(exc)}", memory=True)
             except ray.exceptions.RayActorError as exc:
-                out[s.index] = self._failed(s, f"{who} died: {_first_line(exc)}")
+                out[s.index] = self._failed(s, f"{who} died: {_first_line(exc)}",
+                                            memory=_killed_for_memory(exc))
             except ray.exceptions.RayError as exc:
                 out[s.index] = self._failed(s, f"{who} failed: {_first_line(exc)}")
-            else:  # an actor's own error text already ends with its log tail
-                out[s.index] = res if kind == "ok" else Failed(f"{who} raised:\n{res}", self._where(s))
+            else:
+                out[s.index] = self._answer(s, who, kind, res)
             s.ref = None
         return out
 
@@ -289,9 +296,18 @@ class RayExecutor:
         return self._failed(s, f"actor {s.index} (pid {s.pid}) exceeded the {self.day_timeout_s:g} s "
                                "day limit")
 
-    def _failed(self, s: _Slot, reason: str) -> Failed:
+    def _answer(self, s: _Slot, who: str, kind: str, res: DayResult | str) -> DayResult | Failed:
+        """An actor's answer: its day, the MemoryError it ran into, or the error it raised (whose text
+        already ends with the actor's log tail)."""
+        if kind == "ok":
+            return cast(DayResult, res)
+        if kind == "oom":
+            return self._failed(s, f"{who} ran out of memory (MemoryError):\n{res}", memory=True)
+        return Failed(f"{who} raised:\n{res}", self._where(s))
+
+    def _failed(self, s: _Slot, reason: str, memory: bool = False) -> Failed:
         where = self._where(s)
-        return Failed(f"{reason}\n--- SUMO log tail ({where}) ---\n{log_tail(s.log_path)}", where)
+        return Failed(f"{reason}\n--- SUMO log tail ({where}) ---\n{log_tail(s.log_path)}", where, memory)
 
     def close(self) -> None:
         ray = self._ray
@@ -323,6 +339,18 @@ def _check_loopback(node_ip: str) -> None:
         log.warning("the local Ray listens on %s, not only on 127.0.0.1 (ray was imported before the "
                     "RayExecutor was built, or %s is set to 1). Fix: set %s=0 before ray is imported, "
                     "or use --executor pool.", node_ip, SINGLE_NODE_ENV, SINGLE_NODE_ENV)
+
+
+# What Ray says when its memory monitor, not a crash, ended an actor's task (Ray's generic "the
+# process exited unexpectedly" text lists the OOM killer among possible causes for any death: not
+# taken as proof).
+_RAY_MEMORY_WORDS = ("low on memory", "memory pressure", "outofmemoryerror")
+
+
+def _killed_for_memory(exc: BaseException) -> bool:
+    """An actor's death that Ray attributes to memory running out."""
+    text = str(exc).lower()
+    return any(w in text for w in _RAY_MEMORY_WORDS)
 
 
 def _first_line(exc: BaseException) -> str:

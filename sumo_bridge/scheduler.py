@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
+import traceback
 from collections import deque
 from typing import Generic, NamedTuple, Protocol, TypeVar
 
@@ -33,6 +34,15 @@ log = logging.getLogger(__name__)
 
 class SumoDayError(UrbJaxError):
     """A SUMO day failed twice (or a worker could not start)."""
+
+
+def memory_error_text() -> str:
+    """In a worker's `except MemoryError`: its traceback, or its name where formatting it needs memory
+    there is not."""
+    try:
+        return traceback.format_exc()
+    except MemoryError:
+        return "MemoryError"
 
 
 class SumoOutOfMemoryError(SumoDayError):

@@ -256,3 +256,46 @@ def test_resume_uses_the_recorded_executor_unless_overridden(tmp_path, monkeypat
     with pytest.raises(StopError):
         run.resume_train(ResumeRequest("b", results_dir=str(tmp_path), progress=False, executor="pool"))
     assert asked == [("ray", "ray://head:10001"), ("pool", "ray://head:10001")]
+
+
+# --- memory running out in an actor, as the pool reads it (no cluster: Ray's own error classes) --------
+
+
+def _answering(ray_exceptions, answer):
+    """A stand-in for the `ray` module whose one finished day gives `answer` (a value or an error)."""
+    from types import SimpleNamespace
+
+    def get(ref):
+        if isinstance(answer, BaseException):
+            raise answer
+        return answer
+
+    return SimpleNamespace(exceptions=ray_exceptions, get=get,
+                           wait=lambda refs, num_returns, timeout: (list(refs), []))
+
+
+@pytest.mark.parametrize("answer, memory, says", [
+    (("oom", "Traceback ...\nMemoryError"), True, "ran out of memory (MemoryError)"),
+    ("monitor", True, "ran out of memory (Ray's memory monitor)"),
+    ("died_low_memory", True, "died: "),
+    ("died", False, "died: The actor died unexpectedly"),  # a crash is not taken for memory
+    (("err", "Traceback ...\nValueError: bad"), False, "raised:\nTraceback"),
+])
+def test_an_actor_out_of_memory_is_a_memory_failure_like_a_pool_worker(tmp_path, answer, memory, says):
+    exceptions = pytest.importorskip("ray.exceptions", reason="ray is not installed")
+    from urb_jax.sumo_bridge.ray_executor import RayExecutor, _Slot
+
+    answer = {"monitor": exceptions.OutOfMemoryError("Task was killed due to the node running low on memory."),
+              "died_low_memory": exceptions.RayActorError(
+                  error_msg="The actor is dead because its worker was killed: the node was running low on memory."),
+              "died": exceptions.ActorDiedError()}.get(answer, answer)
+    (tmp_path / "sumo_actor0.log").write_text("SUMO's last words\n")
+    ex = RayExecutor.__new__(RayExecutor)  # no actors: only the reading of their answers is tested
+    ex._ray = _answering(exceptions, answer)
+    slot = _Slot(index=0, actor=None, pid=4242, log_path=str(tmp_path / "sumo_actor0.log"), ref=object())
+    (failed,) = ex.wait([slot], timeout=1).values()
+    assert failed.memory is memory
+    assert says in failed.text and "actor 0 (pid 4242)" in failed.text
+    assert slot.ref is None
+    if not (isinstance(answer, tuple) and answer[0] == "err"):  # an actor's own error carries its log tail
+        assert "SUMO's last words" in failed.text
