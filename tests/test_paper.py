@@ -585,3 +585,14 @@ def test_an_entry_can_take_some_rows_of_another_entrys_tables(tmp_path):
     bad.write_text(json.dumps(raw))
     with pytest.raises(ConfigError, match=r"tables_from\.rows: \['qmx'\] are not rows"):
         load_paper_numbers(bad)
+
+
+def test_the_human_row_reads_the_group_with_most_seeds_whatever_the_order_runs_were_read_in():
+    import pandas as pd
+
+    from urb_jax.reporting.paper import human_key
+
+    five, one = pd.DataFrame({"t_pre": [3.0] * 5}), pd.DataFrame({"t_pre": [3.0]})
+    assert human_key({"aon": one, "iql": five, "mappo": five}) == "iql"  # read from the ledger
+    assert human_key({"mappo": five, "iql": five, "aon": one}) == "iql"  # read from a results folder
+    assert human_key({}) is None

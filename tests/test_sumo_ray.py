@@ -285,9 +285,9 @@ def test_an_actor_out_of_memory_is_a_memory_failure_like_a_pool_worker(tmp_path,
     exceptions = pytest.importorskip("ray.exceptions", reason="ray is not installed")
     from urb_jax.sumo_bridge.ray_executor import RayExecutor, _Slot
 
-    answer = {"monitor": exceptions.OutOfMemoryError("Task was killed due to the node running low on memory."),
-              "died_low_memory": exceptions.RayActorError(
-                  error_msg="The actor is dead because its worker was killed: the node was running low on memory."),
+    low = "the node was running low on memory."
+    answer = {"monitor": exceptions.OutOfMemoryError(f"Task was killed due to {low}"),
+              "died_low_memory": exceptions.RayActorError(error_msg=f"The actor is dead: killed, {low}"),
               "died": exceptions.ActorDiedError()}.get(answer, answer)
     (tmp_path / "sumo_actor0.log").write_text("SUMO's last words\n")
     ex = RayExecutor.__new__(RayExecutor)  # no actors: only the reading of their answers is tested

@@ -309,10 +309,17 @@ def judge_claim(claim: list[Any], row: str, ours: Seeds, paper: dict[str, Any], 
     return V.direction(diff, op)
 
 
+def human_key(ours: Seeds) -> str | None:
+    """Whose t_pre the Human row shows: any run's humans are the same drivers before the CAVs, so the
+    group with the most seeds (then the first by name), whichever order the runs were read in (the
+    results folder's or the ledger's)."""
+    return min(ours, key=lambda k: (-len(ours[k]), k), default=None)
+
+
 def judge_cell(table: dict[str, Any], row: str, column: str, ours: Seeds) -> V.Verdict:
     """Our value of one paper cell against the paper's mean/std/n (SUMO duration, its measure)."""
     prow = table["rows"][row]
-    key = next(iter(ours), None) if row == "human" else row  # t_pre: any run's humans
+    key = human_key(ours) if row == "human" else row
     if column in NOT_COMPARED:  # a hybrid run's costs are not URB's either way: say why first
         return V.not_comparable((key in ours and hybrid_cost(ours[key], column)) or WHY_COST)
     if key is None or key not in ours:
@@ -661,7 +668,7 @@ def _table_markdown(table: dict[str, Any], ours: Seeds, judged: list[Judged],
             if readme and any(differ):
                 out.append("| " + " | ".join(["", "README", str(readme["runs"]), "", *(
                     _paper_num(old[c]) if d else "" for c, d in zip(cols, differ, strict=True))]) + " |")
-        key = next(iter(ours), None) if alg == "human" else alg
+        key = human_key(ours) if alg == "human" else alg
         r = ours.get(key) if key else None
         if r is None:
             why = "not comparable (see below)" if alg in paper.get("not_comparable", {}) else "not run yet"
