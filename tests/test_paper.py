@@ -446,6 +446,22 @@ def test_a_generation_that_would_drop_finished_runs_is_refused(tmp_path, capsys,
     assert "| `sensitivity_demand_half` | found | not run yet |" in page.read_text()
 
 
+def test_the_summary_says_which_seed_runs_the_ledger_can_say_how_they_were_made():
+    import pandas as pd
+
+    from urb_jax.runs.suite import _FINISHED, _provenance_cell
+
+    made = {"commit": "abc", "wall_time_s": 12.0}
+    assert _provenance_cell(pd.DataFrame({"provenance": [made, made]})) == "every seed run (2)"
+    mixed = _provenance_cell(pd.DataFrame({"provenance": [made, float("nan"), None]}))
+    assert mixed.startswith("1 of 3 seed runs; the other 2 finished before the ledger kept provenance")
+    assert _provenance_cell(pd.DataFrame({"exp_id": ["a"]})).startswith("none of 1 seed runs")
+    # the refusal to drop finished runs reads pages with and without the provenance column
+    page = ("| `scenario1` | found | 21 of 21 runs finished | every seed run (79) |\n"
+            "| `scenario2` | found | 7 of 7 runs finished |\n")
+    assert [(m[1], m[2]) for m in _FINISHED.finditer(page)] == [("scenario1", "21"), ("scenario2", "7")]
+
+
 def test_the_finished_seeds_of_an_unfinished_run_outlive_their_machine(tmp_path, monkeypatch, capsys):
     """A run's seeds can take longer than a machine lives (Ingolstadt's QMIX: 2.5 h a seed): each seed
     finished goes to the ledger at once, though its run is not shown until all its seeds are; the

@@ -237,8 +237,8 @@ duration (the measure the published tables fit) and in URB's current travel time
 "Two measures of a trip"). Every paper conclusion is judged on our per-seed values: holds, fails,
 tie or not comparable (the rules are under the summary below).
 
-| entry | paper's numbers | ours |
-|---|---|---|
+| entry | paper's numbers | ours | provenance (commit, machine, versions, command, wall time) |
+|---|---|---|---|
 {summary}
 """
 
@@ -264,7 +264,8 @@ def paper_report(results_dir: str | Path, out: str | Path, allow_fewer: bool = F
         _refuse_fewer(out, {r.entry: r.runs_done for r in results}, results_dir, ledger_file)
     summary = "\n".join(
         f"| `{r.entry}` | {paper['entries'][r.entry]['status']} | "
-        f"{f'{r.runs_done} of {r.runs_planned} runs finished' if r.runs_done else 'not run yet'} |"
+        f"{f'{r.runs_done} of {r.runs_planned} runs finished' if r.runs_done else 'not run yet'} | "
+        f"{_provenance_cell(r.runs)} |"
         for r in results)
     rows = [t.assign(entry=r.entry) for r in results for t in (r.runs, r.partial) if not t.empty]
     write_text(ledger_file, ledger_json(pd.concat(rows, ignore_index=True) if rows else ledger.iloc[:0]))
@@ -283,7 +284,24 @@ def _as_run_from(path: Path) -> str:
         return path.name
 
 
-_FINISHED = re.compile(r"^\| `([^`]+)` \| [^|]+ \| (\d+) of \d+ runs finished \|$", re.MULTILINE)
+def _provenance_cell(runs: pd.DataFrame) -> str:
+    """How many of an entry's seed runs the ledger can say how they were made: those finished before
+    it kept provenance cannot be rerun from it (`suite --verify`) until they are run again."""
+    if runs.empty:
+        return ""
+    recorded = runs["provenance"] if "provenance" in runs else pd.Series([None] * len(runs))
+    kept = int(recorded.map(lambda p: isinstance(p, dict) and bool(p)).sum())
+    if kept == len(runs):
+        return f"every seed run ({kept})"
+    if not kept:
+        return (f"none of {len(runs)} seed runs: they finished before the ledger kept provenance (run "
+                "them again to add it)")
+    return (f"{kept} of {len(runs)} seed runs; the other {len(runs) - kept} finished before the ledger "
+            "kept provenance (run them again to add it)")
+
+
+# "| `entry` | status | N of M runs finished |", with or without the provenance column after it
+_FINISHED = re.compile(r"^\| `([^`]+)` \| [^|]+ \| (\d+) of \d+ runs finished \|", re.MULTILINE)
 
 
 def _refuse_fewer(out: Path, done: dict[str, int], results_dir: Path, ledger_file: Path) -> None:
