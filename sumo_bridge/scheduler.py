@@ -24,7 +24,7 @@ import numpy as np
 
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.core.phase import SUMO_MEMORY_HINT
+from urb_jax.core.phase import IN_PROCESS_MEMORY_HINT, SUMO_MEMORY_HINT
 from urb_jax.sumo_bridge.batch import DayBatch, as_batch, check_batch
 from urb_jax.sumo_bridge.keys import scenario_key
 from urb_jax.sumo_bridge.types import DayResult
@@ -49,6 +49,17 @@ class SumoOutOfMemoryError(SumoDayError):
     """A SUMO day failed twice, and memory ran out in its worker (`memory_hint`: what uses less)."""
 
     memory_hint = SUMO_MEMORY_HINT
+
+
+def out_of_memory_in_process(scenario: Scenario, exc: MemoryError) -> SumoOutOfMemoryError:
+    """The error for a SUMO day that ran out of memory in this process (the in-process executor: one
+    SUMO worker): SUMO shares the process with JAX, so both hints apply; nothing restarts it."""
+    err = SumoOutOfMemoryError(
+        f"a SUMO day of network {scenario.name} ran out of memory in this process (SUMO runs in the "
+        f"trainer's own process with one SUMO worker) ({type(exc).__name__}: {exc})\n"
+        f"{IN_PROCESS_MEMORY_HINT}.")
+    err.memory_hint = IN_PROCESS_MEMORY_HINT
+    return err
 
 
 def out_of_memory_twice(scenario: Scenario, day: int, seed: int, attempts: list[Failed],

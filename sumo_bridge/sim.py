@@ -31,6 +31,7 @@ from urb_jax.sumo_bridge.batch import as_batch, cav_mask, check_choices
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.sumo_bridge.keys import scenario_key, sumo_version
 from urb_jax.sumo_bridge.logs import redirect_fds
+from urb_jax.sumo_bridge.scheduler import out_of_memory_in_process
 from urb_jax.sumo_bridge.tripinfo import insertion_order, parse_tripinfo, route_id, write_routes_file
 from urb_jax.sumo_bridge.types import ARRIVED, REMOVED_CAP, REMOVED_STUCK, STAYED_HOME, DayResult
 
@@ -395,7 +396,10 @@ class InProcessExecutor:
 
     def run_days(self, scenario: Scenario, choices: np.ndarray, seeds: list[int] | np.ndarray,
                  is_cav: np.ndarray | None = None) -> list[DayResult]:
-        return _days_on(self.sim, scenario, choices, seeds, is_cav)
+        try:
+            return _days_on(self.sim, scenario, choices, seeds, is_cav)
+        except MemoryError as exc:  # in the trainer's own process: SUMO's and JAX's hints both apply
+            raise out_of_memory_in_process(scenario, exc) from None
 
     def close(self) -> None:
         self.sim.close()

@@ -316,6 +316,32 @@ def test_a_sumo_worker_out_of_memory_twice_is_a_memory_error_with_sumos_hint(oom
     assert f"urb-jax train --resume run --results-dir {tmp_path}" in out
 
 
+def test_a_sumo_day_out_of_memory_in_process_names_sumo_and_the_learners(grid_scenario, tmp_path,
+                                                                         monkeypatch):
+    """With one SUMO worker the day runs in the trainer's own process: memory running out there is
+    SUMO's (not a learner's traceback), and the hint names what frees memory in that process."""
+    from urb_jax.core.phase import IN_PROCESS_MEMORY_HINT, MEMORY_HINT
+    from urb_jax.sumo_bridge import InProcessExecutor, SumoOutOfMemoryError
+    from urb_jax.sumo_bridge.sim import Simulator
+
+    def no_memory(self, *args, **kwargs):
+        raise MemoryError("std::bad_alloc")
+
+    monkeypatch.setattr(Simulator, "run_day", no_memory)
+    with pytest.raises(SumoOutOfMemoryError) as caught:
+        InProcessExecutor().run_days(grid_scenario, grid_scenario.fft.argmin(1)[None], [3])
+    assert "a SUMO day of network urb_grid ran out of memory in this process" in str(caught.value)
+    assert "std::bad_alloc" in str(caught.value) and is_out_of_memory(caught.value)
+    folder = tmp_path / "run"
+    folder.mkdir()
+    with pytest.raises(OutOfMemoryError) as stopped, stops_cleanly([folder]):
+        enter_phase("round 2 of 3: the SUMO leg")
+        raise caught.value
+    out = str(stopped.value)
+    assert "out of memory during round 2 of 3: the SUMO leg" in out and IN_PROCESS_MEMORY_HINT in out
+    assert MEMORY_HINT not in out and "hybrid.sumo_workers=N" not in out
+
+
 def test_a_sumo_worker_out_of_memory_once_is_restarted_and_its_day_retried(oom_workers, grid_scenario,
                                                                           tmp_path, caplog):
     from support.fakeday import FakeDay

@@ -17,6 +17,12 @@ SUMO_MEMORY_HINT = ("To use less memory in SUMO, start the run again (same comma
                     "simulation of the network) or on a smaller network")
 
 
+IN_PROCESS_MEMORY_HINT = ("SUMO shares this process with the learners: to use less memory, start the run "
+                          "again (same command with --overwrite) on a smaller network, or with fewer "
+                          "parallel envs (--set hybrid.num_envs=N) or seeds mapped instead of vmapped "
+                          "(--set hybrid.seed_axis=map) so that JAX holds less beside it")
+
+
 def enter_phase(name: str) -> None:
     """The run is now in phase `name` (e.g. "round 3: surrogate leg")."""
     _NOW[0] = name
