@@ -190,3 +190,32 @@ def test_modes_that_cannot_support_fleets_refuse_them(tmp_path: Path, capsys, ar
     assert code == 2
     assert said in capsys.readouterr().err
     assert not (tmp_path / "res").exists() or not any((tmp_path / "res").iterdir())
+
+
+@pytest.mark.slow
+def test_a_tiny_fleets_run_reports_each_fleet(tmp_path: Path):
+    """End to end on the embedded network (test configs): both fleets train in one run, exp_config.json
+    names their CAVs (together the one-fleet draw), BenchmarkMetrics.csv appends each fleet's columns
+    after URB's, computed from the records, and the fleets' plot is drawn."""
+    from urb_jax.reporting.metrics import BENCHMARK_COLUMNS
+    from urb_jax.reporting.records import read_records
+
+    code = main(["train", "--task-conf", _fleets_task(tmp_path), "--env-conf", "test", "--hybrid-conf",
+                 "test", "--results-dir", str(tmp_path / "res"), "--id", "fleets", "--no-progress",
+                 "--no-day-store"])
+    assert code == 0
+    run = tmp_path / "res" / "fleets"
+    config = json.loads((run / "exp_config.json").read_text())
+    assert config["alg"] == "iql_star"  # the first fleet's names the run
+    fleets = config["fleet_agents"]
+    assert sorted(fleets) == ["a", "b"] and len(fleets["a"]) == len(fleets["b"]) == 20  # 400 x 0.05 each
+    bench = pd.read_csv(run / "metrics" / "BenchmarkMetrics.csv")
+    assert list(bench.columns) == [*BENCHMARK_COLUMNS, "t_CAV_a", "winrate_a", "cost_of_learning_CAVs_a",
+                                   "t_CAV_b", "winrate_b", "cost_of_learning_CAVs_b"]
+    records = read_records(run)
+    cavs = set(records.loc[records["kind"] == "CAV", "agent"])
+    assert cavs == set(fleets["a"]) | set(fleets["b"])
+    test = records[records["phase"] == "test"]
+    t_a = test[test["agent"].isin(fleets["a"])].groupby("day")["travel_time"].mean().mean()
+    assert bench["t_CAV_a"][0] == pytest.approx(t_a, rel=1e-6)
+    assert (run / "plots" / "fleets_travel_times.png").is_file()
