@@ -131,7 +131,8 @@ def test_every_shipped_task_and_env_config_loads():
     catalogue = {"scenario2", "scenario2_cooperative", "selfish_40_adapt", "altruistic_40_adapt",
                  "demand_half", "demand_double", "selfish_40_adapt_deterministic",
                  "altruistic_40_adapt_deterministic", "malicious_40_deterministic"}  # configs/suites
-    extensions = {"varying_demand_40"}  # urb-jax's own tasks beyond URB's (docs/experiment.md)
+    # urb-jax's own tasks beyond URB's (docs/experiment.md)
+    extensions = {"varying_demand_40", "two_fleets_20_20"}
     assert catalogue | extensions <= set(names)
     assert len(names) == 3 + 8 * 3 + 10 + len(catalogue) + len(extensions)
     for name in names:

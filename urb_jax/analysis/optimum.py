@@ -403,6 +403,10 @@ def run_references(folder: str | Path, networks_dir: str | None = None, cfg: Sea
                           f"{conf['day_participation']}: its days vary in who travels, and the optimum "
                           "and equilibrium references are defined for one fixed demand. Fix: ask for the "
                           "references of a run with day_participation 1.")
+    if conf.get("fleet_agents"):
+        raise UrbJaxError(f"{folder / 'exp_config.json'}: the run has competing fleets (key 'fleets'); the "
+                          "optimum and equilibrium references are defined for one fleet with one objective. "
+                          "Fix: ask for the references of a run without fleets.")
     scn = scenario_of_run(folder, networks_dir)
     rec = read_records(folder, columns=["day", "phase"])
     test_days = rec.loc[rec["phase"] == PHASE_TEST, "day"]

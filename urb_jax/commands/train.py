@@ -19,9 +19,10 @@ METRIC_KEYS = ("t_pre", "t_CAV", "t_HDV_test", "t_train", "winrate", "cost_of_le
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("train", help="train CAV policies (hybrid surrogate + SUMO; metrics from SUMO)")
-    parser.add_argument("--alg", default="iql", choices=(*ALGORITHM_URB_NAMES, *URB_ALIASES),
+    parser.add_argument("--alg", default=None, choices=(*ALGORITHM_URB_NAMES, *URB_ALIASES),
                         help="algorithm (default iql, URB's iql_torchrl; URB's bandit iql is iql_star, its "
-                             "ippo ippo_star; URB's *_torchrl names are accepted: docs/experiment.md)")
+                             "ippo ippo_star; URB's *_torchrl names are accepted: docs/experiment.md); a "
+                             "task with fleets names each fleet's, and the run is named by the first's")
     add_network_flags(parser)
     parser.add_argument("--task-conf", default="config1",
                         help="task config id or .json path (default config1)")
@@ -68,7 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def request_of(args: argparse.Namespace) -> TrainRequest:
     """The one train request the flags ask for (a run and its dry run read the same)."""
     return TrainRequest(
-        alg=args.alg, net=args.net, task_conf=args.task_conf, alg_conf=args.alg_conf, env_conf=args.env_conf,
+        alg=args.alg or "", net=args.net, task_conf=args.task_conf, alg_conf=args.alg_conf,
+        env_conf=args.env_conf,
         hybrid_conf=args.hybrid_conf, env_seed=args.env_seed, seeds=tuple(args.seeds or [args.seed]),
         mode=args.mode, train_days=args.train_days, exp_id=args.id, networks_dir=args.networks_dir,
         human_phase_from=args.human_phase_from, drop_unroutable=args.drop_unroutable,

@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 
 from urb_jax.city.network import DAY_LIMIT_S
 from urb_jax.city.routes import RouteParams
+from urb_jax.core.choices import ALGORITHM_URB_NAMES, URB_ALIASES
 from urb_jax.core.configio import Loaded, Override, find_config, from_dict, load_resolved
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.ranges import DAYS, FRACTION, Range, above, between, check_ranges
@@ -34,6 +35,59 @@ MISSING_OBSERVATIONS = {
     "route_congestion": _LIVE, "trip_info_eta_sumo": _LIVE,
     "previous_agents_plus_start_time_detector_data": _DETECTOR,
 }
+
+
+FLEET_SHARE_TOLERANCE = 1e-9  # the fleets' shares must add up to ratio_machines within this
+
+
+@dataclass(frozen=True)
+class FleetConfig:
+    """One CAV fleet of a task with several (`TaskConfig.fleets`): its share of all drivers, its
+    behaviour (its rewards' T_CAV term is its own fleet's mean) and its learner (an algorithm id
+    and that algorithm's config id or path)."""
+
+    name: str
+    share: float
+    alg: str
+    av_behavior: str | tuple[float, ...] = "selfish"
+    alg_conf: str = "config1"
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "share": above(0, 1, "a share of all drivers; the fleets' shares add up to ratio_machines"),
+        "av_behavior": between(-1000, 1000, "reward weights"),
+    }
+
+    def __post_init__(self) -> None:
+        if isinstance(self.av_behavior, list):
+            object.__setattr__(self, "av_behavior", tuple(float(v) for v in self.av_behavior))
+        check_ranges(self)
+        if not self.name or not self.name.replace("_", "").isalnum():
+            raise ConfigError(f"key 'name' = {self.name!r}. Fix: a fleet's name is letters, digits and _ "
+                              "(it names its metric columns).")
+        alg = URB_ALIASES.get(self.alg, self.alg)
+        if alg not in ALGORITHM_URB_NAMES:
+            raise ConfigError(f"key 'alg' = {self.alg!r} is no algorithm. Fix: use one of "
+                              f"{', '.join(ALGORITHM_URB_NAMES)}.")
+        object.__setattr__(self, "alg", alg)
+        behaviour_coefficients(self.av_behavior)  # validates name / 4-tuple
+
+    @property
+    def reward_coefficients(self) -> tuple[float, float, float, float]:
+        return behaviour_coefficients(self.av_behavior)
+
+
+def _fleets(value: Any) -> tuple[FleetConfig, ...]:
+    """The task's `fleets` list as FleetConfigs (each entry a dict of FleetConfig's keys)."""
+    fleets = []
+    for i, entry in enumerate(value):
+        if isinstance(entry, FleetConfig):
+            fleets.append(entry)
+        elif isinstance(entry, dict):
+            fleets.append(from_dict(FleetConfig, entry, f"key 'fleets' entry {i}"))
+        else:
+            raise ConfigError(f"key 'fleets' entry {i} is {entry!r}. Fix: each fleet is an object with keys "
+                              "name, share, alg and optionally av_behavior, alg_conf.")
+    return tuple(fleets)
 
 
 @dataclass(frozen=True)
@@ -69,6 +123,10 @@ class TaskConfig:
     # Demand that varies day to day (game.demand): each driver travels on a given day after mutation
     # with this probability, drawn anew each day from the env seed; 1: URB's fixed demand
     day_participation: float = 1.0
+    # Competing CAV fleets (game.mutation.split_fleets; docs/experiment.md, "Competing CAV fleets"):
+    # two or more FleetConfigs whose shares add up to ratio_machines, each with its own behaviour and
+    # learner; empty: one fleet, the task's av_behavior and the run's --alg (URB)
+    fleets: tuple[Any, ...] = ()
 
     RANGES: ClassVar[dict[str, Range]] = {
         "ratio_machines": FRACTION, "human_learning_episodes": between(0, DAYS), "test_eps": between(0, DAYS),
@@ -93,6 +151,37 @@ class TaskConfig:
             raise ConfigError(f"key 'reward_credit' must be one of {CREDITS}, got {self.reward_credit!r}.")
         behaviour_coefficients(self.av_behavior)  # validates name / 4-tuple
         self.human_params()  # validates the human model
+        object.__setattr__(self, "fleets", _fleets(self.fleets))
+        if self.fleets:
+            self._check_fleets()
+
+    def _check_fleets(self) -> None:
+        """Fleets: at least two, distinct names, shares that add up to ratio_machines, and none of
+        the options a fleet's learner cannot honour."""
+        if len(self.fleets) < 2:
+            raise ConfigError("key 'fleets' declares one fleet. Fix: one fleet is the task itself "
+                              "(ratio_machines, av_behavior and the run's --alg); declare two or more, or "
+                              "remove 'fleets'.")
+        names = [f.name for f in self.fleets]
+        if len(set(names)) < len(names):
+            raise ConfigError(f"key 'fleets' names {names}. Fix: give each fleet its own name.")
+        total = sum(f.share for f in self.fleets)
+        if abs(total - self.ratio_machines) > FLEET_SHARE_TOLERANCE:
+            raise ConfigError(f"key 'fleets': the shares add up to {total:g}, ratio_machines is "
+                              f"{self.ratio_machines:g}. Fix: make the shares add up to ratio_machines "
+                              "(at most 1).")
+        refused = {"reward_credit": self.reward_credit != "group",
+                   "marginal_cost_beta": self.marginal_cost_beta != 0, "day_participation": self.varies_daily}
+        for key, on in refused.items():
+            if on:
+                raise ConfigError(f"key 'fleets' with key '{key}' = {getattr(self, key)!r}: fleets support "
+                                  f"URB's group rewards and fixed demand only. Fix: remove '{key}' or "
+                                  "'fleets'.")
+
+    @property
+    def fleet_shares(self) -> tuple[float, ...]:
+        """Each fleet's share of all drivers (empty: one fleet, no `fleets`)."""
+        return tuple(f.share for f in self.fleets)
 
     @property
     def surrogate_reward_keys(self) -> list[str]:

@@ -30,7 +30,14 @@ from urb_jax.city.scenario import Scenario
 from urb_jax.game.demand import ABSENT, DayDemand, travelled
 from urb_jax.game.humans import HumanParams, HumanState, act, act_jit, aon_routes, end_day_jit, init_humans
 from urb_jax.game.observations import ObservationSpec, make_observation_spec, observe
-from urb_jax.game.rewards import CREDITS, cav_rewards, credit_rewards, externalities, marginal_cost_rewards
+from urb_jax.game.rewards import (
+    CREDITS,
+    cav_rewards,
+    credit_rewards,
+    externalities,
+    fleet_rewards,
+    marginal_cost_rewards,
+)
 
 # Parameters of travel_time_fn (a pytree, e.g. the surrogate's); None for a parameter-free model.
 EnvParams = Any
@@ -76,6 +83,10 @@ class RoutingEnv:
     marginal_cost_beta: float = 0.0
     # Demand that varies day to day (game.demand): who travels on day `state.day`; None: everyone
     day_demand: DayDemand | None = None
+    # Competing fleets (game.mutation.split_fleets): [N] each agent's fleet, -1 for a human, and each
+    # fleet's reward coefficients; None: one fleet, paid `reward_coefficients`
+    cav_fleet: np.ndarray | None = None
+    fleet_coefficients: tuple[tuple[float, float, float, float], ...] | None = None
 
     @property
     def uses_model(self) -> bool:
@@ -88,9 +99,18 @@ class RoutingEnv:
         if self.day_demand is not None and self.uses_model:
             raise ValueError("day_demand with reward_credit 'marginal' or marginal_cost_beta: the model's "
                              "externalities do not leave out the drivers who stay home")
+        if (self.cav_fleet is None) != (self.fleet_coefficients is None):
+            raise ValueError("cav_fleet and fleet_coefficients go together")
+        if self.cav_fleet is not None and (self.uses_model or self.day_demand is not None):
+            raise ValueError("fleets support group rewards and fixed demand only")
         scn = self.scenario
         is_cav = np.asarray(self.is_cav, dtype=bool)
         object.__setattr__(self, "is_cav", is_cav)
+        if self.cav_fleet is not None:
+            fleet = np.asarray(self.cav_fleet, dtype=np.int32)
+            if fleet.shape != is_cav.shape or not np.array_equal(fleet >= 0, is_cav):
+                raise ValueError("cav_fleet [N] must name a fleet (>= 0) for exactly the CAVs")
+            object.__setattr__(self, "cav_fleet", fleet)
         object.__setattr__(self, "cav_index", np.flatnonzero(is_cav))
         spec = make_observation_spec(self.observation_type, scn.agent_od, scn.agent_depart, scn.k)
         object.__setattr__(self, "obs_spec", spec)
@@ -215,7 +235,10 @@ class RoutingEnv:
         went = None if self.day_demand is None else travelled(choices)  # [N] who travelled
         if went is not None:  # a driver who stayed home has no time (SUMO: NaN): 0, masked below
             times = jnp.where(went, times, 0.0)
-        if self.reward_credit == "marginal":
+        if self.cav_fleet is not None:
+            assert self.fleet_coefficients is not None  # __post_init__: they go together
+            rewards_all = fleet_rewards(times, self.cav_fleet, self.fleet_coefficients)
+        elif self.reward_credit == "marginal":
             assert model is not None  # uses_model: refused above when missing
             rewards_all = credit_rewards(times, is_cav, self.reward_coefficients, model[0])
         else:

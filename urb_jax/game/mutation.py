@@ -47,3 +47,24 @@ def draw_cavs(env_seed: int, n_agents: int, share: float, agent_id: np.ndarray |
         pool.remove(pick)
         mask[pick] = True
     return mask
+
+
+FLEET_SALT = 0xF1EE7  # the fleet split's stream of the env seed (apart from every other draw)
+HUMAN = -1  # split_fleets' entry of a human
+
+
+def split_fleets(env_seed: int, is_cav: np.ndarray, shares: tuple[float, ...]) -> np.ndarray:
+    """[N] int: each agent's fleet (0 .. F-1), HUMAN (-1) for a human. The CAVs of the task's draw
+    (`draw_cavs` at the sum of the shares, so the fleets together are exactly the one-fleet task's
+    CAVs) are shuffled by default_rng([env_seed, FLEET_SALT]) and cut in order: fleet f takes
+    the CAVs from round(C * s_<f / s) to round(C * s_<=f / s), with s_<f the shares before f and s
+    their sum (the last fleet ends at C)."""
+    is_cav = np.asarray(is_cav, dtype=bool)
+    cavs = np.flatnonzero(is_cav)
+    total = float(sum(shares))
+    cuts = [round(len(cavs) * float(sum(shares[:f])) / total) for f in range(len(shares))] + [len(cavs)]
+    order = np.random.default_rng([env_seed, FLEET_SALT]).permutation(cavs)
+    fleet = np.full(is_cav.shape, HUMAN, np.int32)
+    for f in range(len(shares)):
+        fleet[order[cuts[f]:cuts[f + 1]]] = f
+    return fleet

@@ -72,6 +72,25 @@ def cav_rewards(
     return a * times + shared[..., None]
 
 
+def fleet_rewards(times: jnp.ndarray, cav_fleet: np.ndarray, coefficients: Sequence[Sequence[float]],
+                  ) -> jnp.ndarray:
+    """Competing fleets' rewards [..., N]: a member of fleet f is paid its fleet's behaviour,
+    R_i = a_f t_i + b_f T_f + c_f T_HDV + d_f T_all, where T_f is fleet f's mean (its own CAVs,
+    not the other fleets'), T_HDV the humans' and T_all everyone's; a human's entry is 0.
+    `cav_fleet` [N]: each agent's fleet, -1 for a human (`game.mutation.split_fleets`)."""
+    cav_fleet = np.asarray(cav_fleet)
+    humans = jnp.asarray(cav_fleet < 0)
+    t_hum = _masked_mean(times, humans)
+    t_all = _masked_mean(times, jnp.ones_like(humans))
+    out = jnp.zeros_like(times)
+    for f, coeffs in enumerate(coefficients):
+        a, b, c, d = (float(v) for v in coeffs)
+        member = jnp.asarray(cav_fleet == f)
+        reward = a * times + (b * _masked_mean(times, member) + c * t_hum + d * t_all)[..., None]
+        out = jnp.where(member, reward, out)
+    return out
+
+
 CREDITS = ("group", "marginal")
 
 

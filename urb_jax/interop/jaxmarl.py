@@ -66,6 +66,9 @@ class JaxMARLRoutingEnv(MultiAgentEnv):
             raise ConfigError("task key 'day_participation' < 1: the JaxMARL env gives every CAV a turn "
                               "every day and has no mask for the CAVs who stay home. Fix: set "
                               "day_participation to 1 in the run's task config.")
+        if env.cav_fleet is not None:
+            raise ConfigError("task key 'fleets': the JaxMARL env has one CAV fleet. Fix: train fleets with "
+                              "`urb-jax train`, or use a run without 'fleets'.")
         super().__init__(env.n_cavs)
         self.env = env
         self.params = env.default_params if params is None else params

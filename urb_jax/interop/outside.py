@@ -51,6 +51,10 @@ def surrogate_env_from_run(run: str | Path) -> RunEnv:
     if not len(human.calib_choices):
         raise UrbJaxError(f"{folder}: the run recorded no calibration days (--mode sumo). Fix: use a hybrid "
                           "or surrogate run.")
+    if setup.task.fleets:
+        raise UrbJaxError(f"{folder}: the run's task has fleets (key 'fleets'), each with its own learner; "
+                          "an outside policy stands for one fleet of every CAV. Fix: use a run without "
+                          "fleets.")
     static = build_static(setup.scn)
     params = calibrate(uncalibrated(static), static, human, setup.hyb)
     is_cav = draw_cavs(env_seed, setup.scn.n_agents, setup.task.ratio_machines, agent_id=setup.scn.agent_id)

@@ -68,6 +68,10 @@ class _SumoDays:
             raise ConfigError(f"task key 'day_participation' = {self.task.day_participation}: the PettingZoo "
                               "envs run URB's fixed demand (every driver every day). Fix: set "
                               "day_participation to 1, or train with `urb-jax train`.")
+        if self.task.fleets:
+            raise ConfigError("task key 'fleets': the PettingZoo envs have one CAV fleet, paid the task's "
+                              "av_behavior. Fix: train fleets with `urb-jax train`, or use a task without "
+                              "'fleets'.")
         self.env_config = env_config or EnvConfig()
         self.env_seed = env_seed
         self._owns_executor = executor is None

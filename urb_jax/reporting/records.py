@@ -37,6 +37,7 @@ from urb_jax.reporting.metrics import (
     compute_metrics,
     emission_days,
     emission_metrics,
+    fleet_metrics,
     has_emissions,
     social_metrics,
     vector_metrics,
@@ -360,6 +361,16 @@ def run_metrics(folder: str | os.PathLike) -> dict[str, float]:
     return comparable_metrics(metrics) if is_hybrid(cfg) else metrics
 
 
+FLEETS_KEY = "fleet_agents"  # exp_config.json: each fleet's name -> its CAVs' agent ids (runs with fleets)
+
+
+def run_fleets(folder: Path) -> dict[str, list[int]]:
+    """The run's fleets (name -> agent ids, exp_config.json's FLEETS_KEY); empty: one fleet."""
+    if not (Path(folder) / "exp_config.json").is_file():
+        return {}
+    return {str(k): [int(a) for a in v] for k, v in (run_config(Path(folder)).get(FLEETS_KEY) or {}).items()}
+
+
 def write_run_metrics(folder: Path, human_days: int, training_days: int,
                       hybrid: bool = False) -> tuple[dict[str, float], pd.DataFrame]:
     """A run's metric files (metrics/BenchmarkMetrics.csv, VectorMetrics.csv, and SocialMetrics.csv
@@ -370,6 +381,9 @@ def write_run_metrics(folder: Path, human_days: int, training_days: int,
     records = _checked_records(folder)
     metrics = compute_metrics(records, human_days, training_days)
     metrics = comparable_metrics(metrics) if hybrid else metrics
+    fleets = run_fleets(folder)
+    if fleets:  # competing fleets: each fleet's columns after URB's (a run without keeps its bytes)
+        metrics |= fleet_metrics(records, human_days, training_days, fleets, hybrid)
     out = Path(folder) / "metrics"
     # every file computed before any is written: a failure leaves the metric files as they were
     vector = vector_metrics(records, human_days, training_days)
@@ -444,4 +458,24 @@ def write_plots(folder: Path, records: pd.DataFrame, human_days: int, training_d
     p2 = out / "test_distributions.png"
     fig.savefig(p2, dpi=110)
     plt.close(fig)
-    return [p1, p2]
+    fleets = run_fleets(folder)
+    if not fleets:
+        return [p1, p2]
+    # competing fleets: each fleet's mean per day beside the humans' (a run without keeps its plots)
+    fleet_of = {agent: name for name, agents in fleets.items() for agent in agents}
+    by_fleet = rec.assign(group=rec["agent"].map(fleet_of).fillna(rec["group"]))
+    per_fleet = by_fleet.groupby(["day", "group"])["travel_time"].mean().unstack()
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    plot_phases(ax, pd.DataFrame(index=per_fleet.index), H, T, last_day)
+    smooth = per_fleet.rolling(max(smooth_by, 1), min_periods=1).mean()
+    for col in ["HDV", *fleets]:
+        if col in smooth:
+            ax.plot(smooth.index, smooth[col], lw=1.2, label=col if col != "HDV" else "humans")
+    ax.set_xlabel("day")
+    ax.set_ylabel("mean travel time (min)")
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    p3 = out / "fleets_travel_times.png"
+    fig.savefig(p3, dpi=110)
+    plt.close(fig)
+    return [p1, p2, p3]

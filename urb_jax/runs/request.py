@@ -44,11 +44,27 @@ def _resolved_config(config: str) -> str:
     return str(path.resolve()) if path.suffix == ".json" and path.is_file() else config
 
 
+DEFAULT_ALG = "iql"
+
+
+def default_alg(task_conf: str) -> str:
+    """The algorithm a train run of task `task_conf` gets without --alg: the task's first fleet's
+    (a task with fleets, docs/experiment.md "Competing CAV fleets"), else iql."""
+    from urb_jax.game.config import load_task_config  # the task config imports JAX
+
+    try:
+        task, _ = load_task_config(task_conf)
+    except ConfigError:  # the run's own loading says what is wrong, with the --set items
+        return DEFAULT_ALG
+    return task.fleets[0].alg if task.fleets else DEFAULT_ALG
+
+
 @dataclass(frozen=True)
 class TrainRequest:
     """`urb-jax train`: an RL algorithm's URB experiment, trained by the hybrid loop."""
 
-    alg: str = "iql"  # urb-jax id or URB's name (`iql_torchrl`)
+    # urb-jax id or URB's name (`iql_torchrl`); "": iql, or a task with fleets' first fleet's (resolved)
+    alg: str = ""
     net: str | None = None  # network name or folder; None: the embedded default
     task_conf: str = "config1"  # config ids, or .json paths
     alg_conf: str = "config1"
@@ -88,7 +104,7 @@ class TrainRequest:
         from urb_jax.algorithms.registry import canonical  # the registry imports every learner
 
         return dataclasses.replace(
-            self, alg=canonical(self.alg), net=self.net or DEFAULT_NETWORK,
+            self, alg=canonical(self.alg or default_alg(self.task_conf)), net=self.net or DEFAULT_NETWORK,
             task_conf=_resolved_config(self.task_conf), alg_conf=_resolved_config(self.alg_conf),
             env_conf=_resolved_config(self.env_conf), hybrid_conf=_resolved_config(self.hybrid_conf),
             networks_dir=absolute_dir(self.networks_dir))

@@ -14,22 +14,27 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
 
+import numpy as np
+
+from urb_jax.algorithms.fleets import FleetsAlgoConfig
 from urb_jax.algorithms.registry import canonical, load_algo_config
 from urb_jax.city.demand import scale_demand
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.choices import DEFAULT_NETWORK
-from urb_jax.core.configio import in_section, to_dict
+from urb_jax.core.configio import Override, in_section, to_dict
 from urb_jax.core.errors import ConfigError, UrbJaxError
 from urb_jax.core.interrupt import InterruptedRunError, disk_full, no_space, on_stop, stop_cause
 from urb_jax.core.phase import current_phase, enter_phase, is_out_of_memory, memory_hint
 from urb_jax.core.version import __version__
 from urb_jax.game.config import EnvConfig, TaskConfig, load_env_config, load_task_config
+from urb_jax.game.mutation import draw_cavs, split_fleets
+from urb_jax.reporting.records import FLEETS_KEY
 from urb_jax.runs.folder import (
     machine,
     run_status,
     versions,
 )
-from urb_jax.runs.request import TrainRequest
+from urb_jax.runs.request import TrainRequest, default_alg
 from urb_jax.runs.urb_configs import (
     run_overrides,
 )
@@ -76,9 +81,43 @@ def load_setup(req: TrainRequest) -> TrainSetup:
             raise ConfigError(f"--train-days {req.train_days} and --set hybrid.train_days both set the "
                               "training budget. Fix: give one of them.")
         hyb = dataclasses.replace(hyb, train_days=req.train_days)
-    alg_config = load_algo_config(req.alg, req.alg_conf, in_section(ov, "alg"))
+    alg = req.alg or default_alg(req.task_conf)
+    if task.fleets:
+        alg_config: AlgoConfig = fleets_algo_config(task, task_path, alg, req.alg_conf, in_section(ov, "alg"))
+    else:
+        alg_config = load_algo_config(alg, req.alg_conf, in_section(ov, "alg"))
     scn = scenario_of(req.net, req.networks_dir, req.env_seed, env, task, req.drop_unroutable)
     return TrainSetup(scn, task, task_path, env, env_path, hyb, hyb_path, alg_config)
+
+
+def fleets_algo_config(task: TaskConfig, task_path: Path, alg: str, alg_conf: str,
+                       alg_overrides: Sequence[Override]) -> FleetsAlgoConfig:
+    """Each fleet's algorithm config (its own `alg` and `alg_conf`); the run's --alg names the run
+    and must be the first fleet's, and --alg-conf and --set alg.* are refused (a fleet's config is
+    its `alg_conf`, one file per fleet)."""
+    where = f"task config {task_path}: key 'fleets'"
+    first = task.fleets[0]
+    if canonical(alg) != first.alg:
+        raise ConfigError(f"{where} names each fleet's algorithm, and the run is named by the first fleet's "
+                          f"({first.alg}); --alg is {alg}. Fix: leave --alg out, or pass --alg {first.alg}.")
+    if alg_conf != "config1" or alg_overrides:
+        given = "--set alg.*" if alg_overrides else f"--alg-conf {alg_conf}"
+        raise ConfigError(f"{where}: each fleet's algorithm config is its own key 'alg_conf'; {given} would "
+                          "not say which fleet's. Fix: set alg_conf in the fleet's entry (a config id or "
+                          "a .json path).")
+    return FleetsAlgoConfig(tuple(f.name for f in task.fleets), tuple(f.alg for f in task.fleets),
+                            tuple(load_algo_config(f.alg, f.alg_conf) for f in task.fleets))
+
+
+def fleet_record(scn: Scenario, task: TaskConfig, env_seed: int) -> dict[str, Any]:
+    """exp_config.json's fleets (FLEETS_KEY: each fleet's name -> its CAVs' agent ids, what the
+    metrics read); {} for a task without fleets (its record keeps its bytes)."""
+    if not task.fleets:
+        return {}
+    is_cav = draw_cavs(env_seed, scn.n_agents, task.ratio_machines, agent_id=scn.agent_id)
+    fleet = split_fleets(env_seed, is_cav, task.fleet_shares)
+    return {FLEETS_KEY: {f.name: [int(a) for a in np.sort(scn.agent_id[fleet == i])]
+                         for i, f in enumerate(task.fleets)}}
 
 
 def recorded_setup(configs: Sequence[dict[str, Any]], **now: Any) -> tuple[TrainRequest, TrainSetup]:
@@ -108,6 +147,7 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
     without a calibrated surrogate to take its derivative (baselines, `--mode sumo`); demand varying
     day to day where the run cannot honour it (`check_day_demand`, for `alg`)."""
     check_day_demand(task, task_path, train=train, alg=canonical(alg) if alg else "", alg_config=alg_config)
+    check_fleets(task, task_path, n_agents, train=train)
     where = f"task config {task_path}"
     needs = task.surrogate_reward_keys
     if needs and (not train or mode == "sumo"):
@@ -129,6 +169,25 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
             "so there is nothing to train. Fix: set ratio_machines so that at least one agent is a CAV "
             f"(0.4 in URB's config1), or run the humans-only experiment with `urb-jax baseline "
             f"--task-conf {task_path}` (every day in SUMO).")
+
+
+def check_fleets(task: TaskConfig, task_path: Path, n_agents: int, *, train: bool) -> None:
+    """Refuse, before any day, fleets where the run has no learners to give them (a baseline: every
+    CAV follows one fixed model) or a fleet the network's CAV draw leaves empty."""
+    if not task.fleets:
+        return
+    where = f"task config {task_path}: key 'fleets'"
+    if not train:
+        raise ConfigError(f"{where}: fleets of learners are trained by `urb-jax train` only; a baseline's "
+                          "CAVs all follow its one model. Fix: run the baseline on the one-fleet task (the "
+                          "fleets' shares summed as ratio_machines, no 'fleets').")
+    is_cav = np.zeros(n_agents, bool)
+    is_cav[:int(n_agents * task.ratio_machines)] = True
+    sizes = np.bincount(split_fleets(0, is_cav, task.fleet_shares)[is_cav], minlength=len(task.fleets))
+    if n_agents and sizes.min() == 0:
+        empty = [f.name for f, n in zip(task.fleets, sizes, strict=True) if n == 0]
+        raise ConfigError(f"{where}: fleet(s) {', '.join(empty)} get no CAV of this network's "
+                          f"{int(is_cav.sum())}. Fix: larger shares, or fewer fleets.")
 
 
 # The learners whose losses leave out the CAVs that stayed home (Day.active), in their default
@@ -223,12 +282,21 @@ def _resume_hint(folders: list[Path], resumable: bool) -> str:
             f"--results-dir {folders[0].parent}")
 
 
+def task_values(task: TaskConfig) -> dict[str, Any]:
+    """The task's values as exp_config.json records them: `fleets` only where the task has some, so a
+    run without fleets records (and a resume compares) exactly the keys it did before fleets."""
+    values = to_dict(task)
+    if not task.fleets:
+        del values["fleets"]
+    return values
+
+
 def experiment_config(scn: Scenario, task: TaskConfig, task_path: Path, env: EnvConfig, env_path: Path,
                        env_seed: int, human_phase_from: str | None, drop_unroutable: bool) -> dict[str, Any]:
     """exp_config.json's keys of every run, train or baseline: the configs' values, the network and
     its agents, where and with what the run computed."""
     return {
-        **to_dict(env), **to_dict(task),
+        **to_dict(env), **task_values(task),
         "network": scn.name, "net_file": scn.net_file, "env_seed": env_seed,
         "env_config": env_path.stem, "task_config": task_path.stem,
         "num_agents": scn.n_agents, "num_machines": int(scn.n_agents * task.ratio_machines),
@@ -245,7 +313,7 @@ def recorded_values(setup: TrainSetup) -> dict[str, Any]:
     """What a train run records of the configs it read, as exp_config.json holds it (tuples as
     lists): the env and task values, the hybrid ones as hybrid_<key>, the algorithm's under
     ALG_GIVEN_KEY (before the trainer fits them to the run: `alg_config_values` at the end)."""
-    return json.loads(json.dumps({**to_dict(setup.env), **to_dict(setup.task),
+    return json.loads(json.dumps({**to_dict(setup.env), **task_values(setup.task),
                                   **{f"hybrid_{k}": v for k, v in to_dict(setup.hyb).items()},
                                   ALG_GIVEN_KEY: to_dict(setup.alg_config)}))
 

@@ -54,6 +54,7 @@ from urb_jax.runs.setup import (
     check_runnable,
     experiment_config,
     first_reusable,
+    fleet_record,
     load_setup,
     recorded_setup,
     stops_cleanly,
@@ -305,6 +306,7 @@ def _train_config(setup: TrainSetup, req: TrainRequest) -> dict[str, Any]:
         SURROGATE_KEY: surrogate_human_days(hyb, task.human_learning_episodes, req.mode != "sumo"),
         CONFIG_ALIASES_KEY: config_aliases(req),  # URB key names given, and what they set
         OVERRIDES_KEY: train_override_record(req),  # --set items as given and the values they set
+        **fleet_record(scn, task, req.env_seed),  # competing fleets' CAVs; nothing without fleets
     }
 
 

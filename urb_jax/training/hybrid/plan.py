@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any, ClassVar, NamedTuple
 
 from urb_jax.algorithms.configs import IPPOStarConfig, IQLConfig, IQLStarConfig, MixerConfig, PPOConfig
+from urb_jax.algorithms.fleets import FleetsAlgoConfig, fleet_env, fleet_updates_per_iter, make_fleets_learner
 from urb_jax.algorithms.learner import Learner
 from urb_jax.algorithms.registry import algorithm
 from urb_jax.core.configio import Loaded, Override, find_config, load_resolved
@@ -21,7 +22,7 @@ from urb_jax.surrogate.calibrate import ROUTE_BIAS_PRIOR_DAYS
 
 SEED_AXES = ("auto", "vmap", "map")  # how a group's seeds share one program (hybrid/fns.py)
 # The config of any algorithm of urb_jax.algorithms.registry.ALGORITHMS.
-AlgoConfig = IQLConfig | PPOConfig | MixerConfig | IQLStarConfig | IPPOStarConfig
+AlgoConfig = IQLConfig | PPOConfig | MixerConfig | IQLStarConfig | IPPOStarConfig | FleetsAlgoConfig
 
 
 @dataclass(frozen=True)
@@ -211,6 +212,17 @@ def learner_for(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridCo
     epsilon schedules (linear over n_iters, or IQL*'s per-update decay) end where URB's end, over the
     iterations and updates `plan` trains (its short last round included). `plan` None: one round
     of one iteration (the learner's size only, e.g. its days per iteration, before the plan)."""
+    if isinstance(alg_config, FleetsAlgoConfig):  # each fleet's learner fitted alike, on its view
+        specs = [(a, c, fleet_env(env, f)) for f, (a, c) in enumerate(zip(alg_config.algs, alg_config.configs,
+                                                                           strict=True))]
+        _, per_iter = fleet_updates_per_iter([learner_for(a, c, v, cfg, None, mode)[0].days_per_iter
+                                              for a, c, v in specs])
+        # fleet f updates per_iter[f] times an iteration: its schedules span that many more updates
+        fitted = [learner_for(a, c, v, cfg, None if plan is None else plan._replace(
+                      iters=plan.iters * k, last_iters=plan.last_iters * k), mode)
+                  for (a, c, v), k in zip(specs, per_iter, strict=True)]
+        learner = make_fleets_learner(env, [lr for lr, _ in fitted], alg_config.names, cfg.num_envs)
+        return learner, dataclasses.replace(alg_config, configs=tuple(c for _, c in fitted))
     fields = {f.name for f in dataclasses.fields(alg_config)}
     by_name: Any = alg_config  # the fields read below are checked by name (`fields`), not by type
     upd: dict[str, Any] = {"num_envs": cfg.num_envs}

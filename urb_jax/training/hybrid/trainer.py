@@ -35,7 +35,7 @@ from urb_jax.core.progress import Progress
 from urb_jax.game.config import EnvConfig, TaskConfig
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
-from urb_jax.game.mutation import draw_cavs
+from urb_jax.game.mutation import draw_cavs, split_fleets
 from urb_jax.reporting.records import (
     PARTS_DIR,
     DayRecord,
@@ -222,7 +222,7 @@ def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: in
     of the right shapes (a resume's checkpoint, or a dry run, replaces it)."""
     is_cav = draw_cavs(env_seed, scn.n_agents, task.ratio_machines, agent_id=scn.agent_id)
     static = build_static(scn)
-    env_kwargs = routing_env_kwargs(task, env_cfg, env_seed)
+    env_kwargs = routing_env_kwargs(task, env_cfg, env_seed, is_cav)
     if humans is None:
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid),
                              task.human_params())
@@ -273,13 +273,21 @@ def _slow_hint(alg: str, alg_config: AlgoConfig) -> str:
     return "Fewer --train-days, a smaller config or a GPU would shorten it"
 
 
-def routing_env_kwargs(task: TaskConfig, env_cfg: EnvConfig, env_seed: int) -> dict[str, Any]:
+def routing_env_kwargs(task: TaskConfig, env_cfg: EnvConfig, env_seed: int,
+                       is_cav: np.ndarray | None = None) -> dict[str, Any]:
     """`RoutingEnv` keywords from the task and env configs (the same for surrogate and SUMO days,
-    so both see the same drivers on a day of the same index: `day_demand` from the env seed)."""
-    return dict(human_params=task.human_params(), reward_coefficients=task.reward_coefficients,
-                observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt,
-                reward_credit=task.reward_credit, marginal_cost_beta=task.marginal_cost_beta,
-                day_demand=task.day_demand(env_seed))
+    so both see the same drivers on a day of the same index: `day_demand` from the env seed).
+    A task with fleets needs the CAV draw `is_cav` [N] (its fleets are split from it)."""
+    kwargs = dict(human_params=task.human_params(), reward_coefficients=task.reward_coefficients,
+                  observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt,
+                  reward_credit=task.reward_credit, marginal_cost_beta=task.marginal_cost_beta,
+                  day_demand=task.day_demand(env_seed))
+    if task.fleets:
+        if is_cav is None:
+            raise ValueError("a task with fleets needs the CAV draw (is_cav) to split its fleets")
+        kwargs |= dict(cav_fleet=split_fleets(env_seed, is_cav, task.fleet_shares),
+                       fleet_coefficients=tuple(f.reward_coefficients for f in task.fleets))
+    return kwargs
 
 
 def surrogate_env(scn: Scenario, is_cav: np.ndarray, static: Static, humans: HumanState, params: Params,
