@@ -131,13 +131,21 @@ def test_per_fleet_metrics_on_a_hand_computed_case():
     records = pd.DataFrame([{"day": d, "agent": a, "travel_time": float(t)}
                             for d, row in times.items() for a, t in enumerate(row)])
     m = fleet_metrics(records, 2, 1, {"a": [1], "b": [2, 3]})
-    # t_pre = 3; a: test mean 2 (wins), training excess 4 - 3 = 1; b: test days (4 + 2) / 2 = 3 and
-    # (4 + 4) / 2 = 4, mean 3.5 (loses), training excess (2 - 3 + 3 - 3) / 2 = -0.5
-    assert m == {"t_CAV_a": 2.0, "winrate_a": 1.0, "cost_of_learning_CAVs_a": 1.0,
-                 "t_CAV_b": 3.5, "winrate_b": 0.0, "cost_of_learning_CAVs_b": -0.5}
+    # t_pre = 3 for both; a: test mean 2 (wins), training excess 4 - 3 = 1; b: test days
+    # (4 + 2) / 2 = 3 and (4 + 4) / 2 = 4, mean 3.5 (loses), training excess (2 - 3 + 3 - 3) / 2 = -0.5
+    assert m == {"t_pre_a": 3.0, "t_CAV_a": 2.0, "winrate_a": 1.0, "cost_of_learning_CAVs_a": 1.0,
+                 "t_pre_b": 3.0, "t_CAV_b": 3.5, "winrate_b": 0.0, "cost_of_learning_CAVs_b": -0.5}
     hybrid = fleet_metrics(records, 2, 1, {"a": [1], "b": [2, 3]}, hybrid=True)
-    assert list(hybrid) == ["t_CAV_a", "winrate_a", "cost_of_learning_CAVs_a_sumo_days",
-                            "t_CAV_b", "winrate_b", "cost_of_learning_CAVs_b_sumo_days"]
+    assert list(hybrid) == ["t_pre_a", "t_CAV_a", "winrate_a", "cost_of_learning_CAVs_a_sumo_days",
+                            "t_pre_b", "t_CAV_b", "winrate_b", "cost_of_learning_CAVs_b_sumo_days"]
+    # each fleet is judged against its own drivers' pre-CAV time: fleet b's drivers had long trips
+    # (5 min) and end at 4.5, a win, though above the all-agent pre-CAV mean (3.75)
+    times = {1: [2, 2, 5, 5], 2: [2, 2, 5, 5], 3: [2, 2, 5, 5], 4: [2, 2, 4, 5], 5: [2, 2, 5, 4]}
+    records = pd.DataFrame([{"day": d, "agent": a, "travel_time": float(t)}
+                            for d, row in times.items() for a, t in enumerate(row)])
+    m = fleet_metrics(records, 2, 1, {"a": [1], "b": [2, 3]})
+    assert (m["t_pre_b"], m["t_CAV_b"], m["winrate_b"]) == (5.0, 4.5, 1.0)
+    assert (m["t_pre_a"], m["t_CAV_a"], m["winrate_a"]) == (2.0, 2.0, 0.0)
 
 
 def test_fleets_config_validation(tmp_path: Path):
@@ -210,8 +218,9 @@ def test_a_tiny_fleets_run_reports_each_fleet(tmp_path: Path):
     fleets = config["fleet_agents"]
     assert sorted(fleets) == ["a", "b"] and len(fleets["a"]) == len(fleets["b"]) == 20  # 400 x 0.05 each
     bench = pd.read_csv(run / "metrics" / "BenchmarkMetrics.csv")
-    assert list(bench.columns) == [*BENCHMARK_COLUMNS, "t_CAV_a", "winrate_a", "cost_of_learning_CAVs_a",
-                                   "t_CAV_b", "winrate_b", "cost_of_learning_CAVs_b"]
+    assert list(bench.columns) == [*BENCHMARK_COLUMNS, "t_pre_a", "t_CAV_a", "winrate_a",
+                                   "cost_of_learning_CAVs_a", "t_pre_b", "t_CAV_b", "winrate_b",
+                                   "cost_of_learning_CAVs_b"]
     records = read_records(run)
     cavs = set(records.loc[records["kind"] == "CAV", "agent"])
     assert cavs == set(fleets["a"]) | set(fleets["b"])

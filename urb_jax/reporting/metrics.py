@@ -169,32 +169,34 @@ def compute_metrics(records: pd.DataFrame, human_days: int, training_days: int) 
 
 def fleet_columns(name: str, hybrid: bool = False) -> list[str]:
     """BenchmarkMetrics.csv's columns of fleet `name` (a run with fleets appends them after URB's):
-    its t_CAV, win rate and cost of learning (a hybrid run's under the `_sumo_days` name, as the
-    all-CAV column: reporting.comparable)."""
+    its drivers' pre-CAV time, t_CAV, win rate and cost of learning (a hybrid run's under the
+    `_sumo_days` name, as the all-CAV column: reporting.comparable)."""
     cost = f"cost_of_learning_CAVs_{name}" + ("_sumo_days" if hybrid else "")
-    return [f"t_CAV_{name}", f"winrate_{name}", cost]
+    return [f"t_pre_{name}", f"t_CAV_{name}", f"winrate_{name}", cost]
 
 
 def fleet_metrics(records: pd.DataFrame, human_days: int, training_days: int,
                   fleets: dict[str, list[int]], hybrid: bool = False) -> dict[str, float]:
-    """Each fleet's t_CAV (mean over test days of the mean over its CAVs), win rate (its t_CAV
-    below t_pre, the mean over every agent of the pre-CAV window) and cost of learning (mean excess
-    of its CAVs over their pre-CAV means during training), defined as URB's all-CAV columns over
-    the fleet's agents (`fleets`: name -> agent ids), in `fleet_columns` order."""
+    """Each fleet's t_pre (the mean over the pre-CAV window of the mean over the fleet's drivers,
+    while they were humans), t_CAV (mean over test days of the mean over its CAVs), win rate (its
+    t_CAV below its own t_pre: fleets are small samples of the CAVs, whose trips differ in length,
+    so the all-agent t_pre would judge the draw, not the learning) and cost of learning (mean excess
+    of its CAVs over their pre-CAV means during training), URB's all-CAV columns over the fleet's
+    agents (`fleets`: name -> agent ids), in `fleet_columns` order."""
     tt = _wide(records, "travel_time")
     s = slices(tt.index.to_numpy(), human_days, training_days)
-    t_pre = _slice_mean(tt, s["pre"], tt.columns.to_numpy())
     pre_mean = tt.loc[s["pre"]].mean(axis=0) if len(s["pre"]) else pd.Series(np.nan, index=tt.columns)
     excess_train = tt.loc[s["train"]] - pre_mean
     out: dict[str, float] = {}
     for name, agents in fleets.items():
         members = np.sort(np.asarray(agents, dtype=tt.columns.dtype))
+        t_pre = _slice_mean(tt, s["pre"], members)
         t_cav = _slice_mean(tt, s["test"], members)
         undefined = math.isnan(t_cav) or math.isnan(t_pre)
         cost = (float(np.nanmean(excess_train[members].to_numpy()))
                 if excess_train.shape[0] and len(members) else _nan())
         winrate = _nan() if undefined else float(t_cav < t_pre)
-        out |= dict(zip(fleet_columns(name, hybrid), (t_cav, winrate, cost), strict=True))
+        out |= dict(zip(fleet_columns(name, hybrid), (t_pre, t_cav, winrate, cost), strict=True))
     return out
 
 
