@@ -58,8 +58,13 @@ def load_run(results: Path, label: str, names: list[str]) -> Run | None:
     if any(c is None for c in configs):
         return None
     bench = [pd.read_csv(f / "metrics" / "BenchmarkMetrics.csv").iloc[0] for f in folders]
-    social = [pd.read_csv(f / "metrics" / "SocialMetrics.csv").iloc[0] for f in folders]
+    social = [_first_row(f / "metrics" / "SocialMetrics.csv") for f in folders]
     return Run(label, folders, bench, social, [c for c in configs if c is not None])
+
+
+def _first_row(path: Path) -> pd.Series:
+    """A one-row metric file's row (empty when the file is absent, e.g. a run from before it)."""
+    return pd.read_csv(path).iloc[0] if path.is_file() else pd.Series(dtype=float)
 
 
 def suite_runs(entry: str) -> list[dict]:
@@ -138,7 +143,7 @@ def varying_demand(results: Path) -> list[str]:
         a = runs[left]
         if a is None or (right is not None and runs[right] is None):
             continue
-        b = runs[right]
+        b = None if right is None else runs[right]
         other = a.values("t_pre") if b is None else b.values("t_CAV")
         out.append(f"| {label} | {diff_cell(a.values('t_CAV'), other)} |")
     return [*out, ""]

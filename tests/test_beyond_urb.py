@@ -16,7 +16,8 @@ def _run(root, name, bench: dict, social: dict | None = None, trips: tuple[int, 
     (folder / "metrics").mkdir(parents=True)
     (folder / "exp_config.json").write_text(json.dumps({"status": "done"}))
     pd.DataFrame([bench]).to_csv(folder / "metrics" / "BenchmarkMetrics.csv", index=False)
-    pd.DataFrame([social or {}]).to_csv(folder / "metrics" / "SocialMetrics.csv", index=False)
+    if social is not None:
+        pd.DataFrame([social]).to_csv(folder / "metrics" / "SocialMetrics.csv", index=False)
     rows = [{"day": 300 + d, "phase": "test", "action": a} for d, n in enumerate(trips)
             for a in [0] * n + [-1] * (3 - n)]
     pd.DataFrame(rows).to_parquet(folder / "records.parquet")
