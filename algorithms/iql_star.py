@@ -8,6 +8,11 @@ Every day a CAV stores (observation at its turn, action, its day reward) in its 
 (MSE, no bootstrapping, no target network); then epsilon <- max(eps_min, epsilon * eps_decay).
 Acting is epsilon-greedy over valid routes. With `num_envs` B > 1, an update sees the B
 parallel environments' days (B samples per CAV per day) and epsilon decays per update, as URB.
+
+Demand varying day to day (the task's `day_participation`): each CAV's buffer is its own FIFO ring
+of the days it travelled (`buffer_add_where`), and a CAV updates only after a day it travelled
+(`Day.active`), once its own buffer holds `batch_size` samples; a CAV at home stores nothing and
+its network and Adam state stay as they were. Epsilon, one for all CAVs, decays when any CAV updated.
 """
 
 from __future__ import annotations
@@ -18,9 +23,17 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_init
+from urb_jax.algorithms.buffer import Buffer, buffer_add, buffer_add_where, buffer_init, buffer_init_columns
 from urb_jax.algorithms.configs import IQLStarConfig
-from urb_jax.algorithms.learner import Day, Learner, collect_then_update, day_metrics, reset_envs, scan_train
+from urb_jax.algorithms.learner import (
+    Day,
+    Learner,
+    active_mean,
+    collect_then_update,
+    day_metrics,
+    reset_envs,
+    scan_train,
+)
 from urb_jax.algorithms.networks import make_per_cav_mlp
 from urb_jax.algorithms.policy import eps_greedy_policy
 from urb_jax.algorithms.updates import adam_step, flatten_days, select_tree
@@ -36,7 +49,9 @@ class Sample(NamedTuple):
 class RunnerState(NamedTuple):
     params: Any  # leaves [C, ...]
     opt_state: Any  # leaves [C, ...]
-    buffer: Buffer  # entries [capacity] of Sample (every CAV adds one per env-day)
+    # entries [capacity] of Sample (every CAV adds one per env-day); with day_demand one ring per CAV
+    # (pos and size [C]) that holds the days it travelled
+    buffer: Buffer
     env_states: EnvState
     env_params: EnvParams  # travel-time parameters the envs simulate with
     eps: jnp.ndarray
@@ -68,6 +83,7 @@ def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:
     n_iters = max(1, config.num_episodes // n_days)
     capacity = max(config.buffer_size, config.batch_size)
     tx = optax.adam(config.lr)
+    varied = env.day_demand is not None  # demand varies day to day: per-CAV buffers, masked updates
 
     def agent_update(params: Any, opt_state: Any, obs: jnp.ndarray, action: jnp.ndarray, reward: jnp.ndarray,
                      key: jax.Array, size: jnp.ndarray):
@@ -91,7 +107,8 @@ def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:
         params = init_params(k_init)
         c, d = n_cav, env.obs_size
         example = Sample(jnp.zeros((c, d)), jnp.zeros((c,), jnp.int32), jnp.zeros((c,)))
-        return RunnerState(params, jax.vmap(tx.init)(params), buffer_init(example, capacity),
+        buffer = buffer_init_columns(example, capacity, c) if varied else buffer_init(example, capacity)
+        return RunnerState(params, jax.vmap(tx.init)(params), buffer,
                            reset_envs(env, k_env, n_envs), env.default_params,
                            jnp.asarray(config.eps_init, jnp.float32))
 
@@ -99,6 +116,8 @@ def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:
         return policy_for(runner.params, runner.eps if explore else 0.0)
 
     def update_from_days(runner: RunnerState, days: Day, key: jax.Array):
+        if days.active is not None:
+            return update_travelled(runner, days, key, days.active)
         buffer = buffer_add(runner.buffer, flatten_days(Sample(days.obs, days.action, days.reward)))
         data = buffer.data  # [cap, C, ...] -> per-CAV columns
         params, opt_state, loss = jax.vmap(agent_update, in_axes=(0, 0, 1, 1, 1, 0, None))(
@@ -108,6 +127,27 @@ def make_learner(config: IQLStarConfig, env: RoutingEnv) -> Learner:
         params, opt_state = select_tree(ready, (params, opt_state), (runner.params, runner.opt_state))
         eps = jnp.where(ready, jnp.maximum(config.eps_min, runner.eps * config.eps_decay), runner.eps)
         metrics = day_metrics(days) | {"loss": loss.mean(), "eps": runner.eps}
+        return runner._replace(params=params, opt_state=opt_state, buffer=buffer, eps=eps), metrics
+
+    def update_travelled(runner: RunnerState, days: Day, key: jax.Array, active: jnp.ndarray):
+        """The update under varying demand: each CAV stores and learns from the days it travelled
+        (`active` [T, B, C]) only; a CAV at home on every one of `days` does not update."""
+        went = flatten_days(active)  # [T*B, C]
+        samples = flatten_days(Sample(days.obs, days.action, days.reward))
+        buffer = buffer_add_where(runner.buffer, samples, went)
+        data = buffer.data
+        params, opt_state, loss = jax.vmap(agent_update, in_axes=(0, 0, 1, 1, 1, 0, 0))(
+            runner.params, runner.opt_state, data.obs, data.action, data.reward,
+            jax.random.split(key, n_cav), buffer.size)
+        updated = went.any(axis=0) & (buffer.size >= config.batch_size)  # [C]
+
+        def pick(new: jnp.ndarray, old: jnp.ndarray) -> jnp.ndarray:
+            return jnp.where(updated.reshape(-1, *(1,) * (new.ndim - 1)), new, old)
+
+        params, opt_state = jax.tree_util.tree_map(pick, (params, opt_state),
+                                                   (runner.params, runner.opt_state))
+        eps = jnp.where(updated.any(), jnp.maximum(config.eps_min, runner.eps * config.eps_decay), runner.eps)
+        metrics = day_metrics(days) | {"loss": active_mean(loss, updated), "eps": runner.eps}
         return runner._replace(params=params, opt_state=opt_state, buffer=buffer, eps=eps), metrics
 
     iteration = collect_then_update(env, policy, update_from_days, n_days)

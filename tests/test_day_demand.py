@@ -146,7 +146,7 @@ def test_task_option_range_and_refusals():
             TaskConfig(day_participation=bad)
     task, path = TaskConfig(day_participation=0.9), Path("task.json")
     check_day_demand(task, path, train=True, alg="iql", alg_config=IQLConfig())
-    with pytest.raises(ConfigError, match="baselines run URB's fixed demand"):
+    with pytest.raises(ConfigError, match="supported by `urb-jax train` and the aon and random baselines"):
         check_day_demand(task, path, train=False)
     with pytest.raises(ConfigError, match="algorithm 'qmix'"):
         check_day_demand(task, path, train=True, alg="qmix", alg_config=MixerConfig())

@@ -1,6 +1,7 @@
 """A deterministic stand-in for a SUMO day: route time = FFT * (1 + load / 20) per (OD, route),
 SUMO duration 2 s shorter (as `sumo_bridge` records them), itself a DayExecutor that runs a batch
-a day at a time; and FakeExecutor, a DayExecutor that runs it and remembers every batch (the
+a day at a time (a driver who chose ABSENT, -1, stays home: no load, NaN times, STAYED_HOME, as
+`sumo_bridge` records it); and FakeExecutor, a DayExecutor that runs it and remembers every batch (the
 tests', tests/support/compile_cache_run.py's and benchmarks/gpu_hybrid_check.py's)."""
 
 from __future__ import annotations
@@ -8,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from urb_jax.sumo_bridge.batch import as_batch
-from urb_jax.sumo_bridge.types import ARRIVED, DayResult
+from urb_jax.sumo_bridge.types import ARRIVED, STAYED_HOME, DayResult
 
 
 class FakeDay:
@@ -31,17 +32,21 @@ class FakeDay:
         n = choices.shape[0]
         rows = np.arange(n)
         od = scenario.agent_od
-        key = od.astype(np.int64) * scenario.k + choices
+        home = choices < 0  # ABSENT: no vehicle
+        key = np.where(home, -1 - rows, od.astype(np.int64) * scenario.k + choices)  # alone, unseen
         _, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
         load = counts[inv] - 1
-        tt = scenario.fft[rows, choices] * (1.0 + load / 20.0)
-        length = scenario.od_route_length[od, choices]
+        route = np.where(home, 0, choices)
+        tt = np.where(home, np.nan, scenario.fft[rows, route] * (1.0 + load / 20.0))
+        length = np.where(home, np.nan, scenario.od_route_length[od, route])
         dur = tt * 60.0 - 2.0  # SUMO's duration lacks RouteRL's 2 s recording lag (sumo_bridge)
+        status = np.where(home, STAYED_HOME, ARRIVED).astype(np.int8)
+        mean = np.nanmean if home.any() else np.mean
         return DayResult(
             travel_time=tt, duration=dur, route_length=length, mean_speed=length / dur,
-            time_loss=np.zeros(n), depart_delay=np.zeros(n), status=np.full(n, ARRIVED, np.int8),
-            seed=seed, stat_mean_speed=float(np.mean(length / dur)),
-            stat_mean_route_length=float(length.mean()), stat_mean_duration=float(dur.mean()),
+            time_loss=np.zeros(n), depart_delay=np.zeros(n), status=status,
+            seed=seed, stat_mean_speed=float(mean(length / dur)),
+            stat_mean_route_length=float(mean(length)), stat_mean_duration=float(mean(dur)),
             teleports=0, n_removed=0, sim_end_time=0.0, wall_time=0.0,
         )
 

@@ -59,7 +59,7 @@ def run_baseline(req: BaselineRequest, *, executor: DayExecutor | None = None,
     finished runs that can be replayed, if any). `executor`: run the days on it instead of SUMO in
     this process (left open); `task_overrides`: task config values set directly (tests)."""
     return _run_policy(make_baseline(req.model), lambda task: baseline_names(req.model, task.training_eps),
-                       req.model, req, executor, task_overrides, human_phase_candidates)
+                       req.model, req, executor, task_overrides, human_phase_candidates, baseline=req.model)
 
 
 @with_run_log
@@ -78,9 +78,10 @@ def run_policy(policy: CavPolicy, req: BaselineRequest | None = None, *, executo
 
 def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, Any]], id_prefix: str,
                 req: BaselineRequest, executor: DayExecutor | None, task_overrides: dict[str, Any] | None,
-                human_phase_candidates: Sequence[str] = ()) -> RunResult:
+                human_phase_candidates: Sequence[str] = (), baseline: str = "") -> RunResult:
     """Every day in SUMO with `policy`; `labels_of(task)`: what exp_config.json calls the policy; the
-    default id is `id_prefix`_<network>_<task>_s<env seed>."""
+    default id is `id_prefix`_<network>_<task>_s<env seed>; `baseline`: the baseline model it is
+    (empty: a policy from outside)."""
     enable_compile_cache()
     if req.day_store:
         day_store_bytes()  # a bad $URB_JAX_DAY_STORE_GB stops the run before it starts
@@ -90,7 +91,7 @@ def _run_policy(policy: CavPolicy, labels_of: Callable[[TaskConfig], dict[str, A
     if task_overrides:
         task = dataclasses.replace(task, **task_overrides)
     env, env_path = loaded["env"].config, loaded["env"].path
-    check_runnable(task, task_path, 0, train=False)
+    check_runnable(task, task_path, 0, train=False, baseline=baseline)
     exp_id = req.exp_id or f"{id_prefix}_{Path(net).name}_{task_path.stem}_s{req.env_seed}"
     t0 = time.perf_counter()
     scn = scenario_of(net, req.networks_dir, req.env_seed, env, task, req.drop_unroutable)  # error: no folder

@@ -141,12 +141,13 @@ def scenario_of(net: str | None, networks_dir: str | None, env_seed: int, env: E
 
 
 def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: bool, mode: str = "hybrid",
-                   alg: str = "", alg_config: Any = None) -> None:
+                   alg: str = "", alg_config: Any = None, baseline: str = "") -> None:
     """Refuse, before any SUMO day, a task whose URB metrics could not exist: no human day (t_pre),
     no test day (t_CAV, t_test, WR), or, for training, no CAV to train; a marginal credit
     without a calibrated surrogate to take its derivative (baselines, `--mode sumo`); demand varying
-    day to day where the run cannot honour it (`check_day_demand`, for `alg`)."""
-    check_day_demand(task, task_path, train=train, alg=canonical(alg) if alg else "", alg_config=alg_config)
+    day to day where the run cannot honour it (`check_day_demand`, for `alg` or the `baseline` model)."""
+    check_day_demand(task, task_path, train=train, alg=canonical(alg) if alg else "", alg_config=alg_config,
+                     baseline=baseline)
     check_fleets(task, task_path, n_agents, train=train)
     where = f"task config {task_path}"
     needs = task.surrogate_reward_keys
@@ -191,24 +192,30 @@ def check_fleets(task: TaskConfig, task_path: Path, n_agents: int, *, train: boo
 
 
 # The learners whose losses leave out the CAVs that stayed home (Day.active), in their default
-# "days" frames; the others would learn from days their CAVs did not travel.
-DAY_DEMAND_ALGORITHMS = ("iql", "ippo", "mappo")
+# "days" frames (IQL*, IPPO*: a CAV learns only from the samples of days it travelled); the others
+# would learn from days their CAVs did not travel.
+DAY_DEMAND_ALGORITHMS = ("iql", "ippo", "mappo", "iql_star", "ippo_star")
+# The baselines whose CAVs learn nothing, so a day at home changes nothing for them (the human
+# baseline's CAVs learn as humans; its learning is not masked).
+DAY_DEMAND_BASELINES = ("aon", "random")
 
 
 def check_day_demand(task: TaskConfig, task_path: Path, *, train: bool, alg: str = "",
-                     alg_config: Any = None) -> None:
+                     alg_config: Any = None, baseline: str = "") -> None:
     """Refuse, before any day, a run that cannot honour `day_participation` < 1 (demand varying
-    day to day): the baselines and other SUMO-only protocols (their days are not wired to it), a
-    learner that does not mask the CAVs who stayed home, and the marginal rewards (their model
-    derivative counts every driver)."""
+    day to day): the human baseline, a policy from outside and other SUMO-only protocols (their
+    days are not wired to it), a learner that does not mask the CAVs who stay home, and the marginal
+    rewards (their model derivative counts every driver)."""
     if not task.varies_daily:
         return
     where = f"task config {task_path}: key 'day_participation' = {task.day_participation}"
-    if not train:
-        raise ConfigError(f"{where} (demand varying day to day) is supported by `urb-jax train` only; the "
-                          "baselines run URB's fixed demand. Fix: set day_participation to 1 for baselines.")
+    if not train and baseline not in DAY_DEMAND_BASELINES:
+        what = f"the '{baseline}' baseline" if baseline else "a policy run outside `urb-jax train`"
+        raise ConfigError(f"{where} (demand varying day to day) is supported by `urb-jax train` and the "
+                          f"{' and '.join(DAY_DEMAND_BASELINES)} baselines only, not by {what}. Fix: use "
+                          f"--model {' or '.join(DAY_DEMAND_BASELINES)}, or set day_participation to 1.")
     frames = getattr(alg_config, "frames", "days")
-    if alg not in DAY_DEMAND_ALGORITHMS or frames != "days":
+    if train and (alg not in DAY_DEMAND_ALGORITHMS or frames != "days"):
         raise ConfigError(f"{where}: algorithm '{alg}' (frames {frames!r}) does not leave the CAVs who "
                           "stay home out of its loss. Fix: use one of "
                           f"{', '.join(DAY_DEMAND_ALGORITHMS)} with frames 'days', or set day_participation "

@@ -23,6 +23,7 @@ from urb_jax.algorithms.baselines import CavPolicy
 from urb_jax.city.scenario import Scenario
 from urb_jax.core.progress import Progress
 from urb_jax.game.config import EnvConfig, TaskConfig
+from urb_jax.game.demand import ABSENT
 from urb_jax.game.env import DayKeys, EnvState, RoutingEnv
 from urb_jax.game.humans import (
     HumanParams,
@@ -89,7 +90,8 @@ def _phases(scenario: Scenario, task: TaskConfig, env: EnvConfig, policy: CavPol
     is_cav = draw_cavs(env_seed, scenario.n_agents, task.ratio_machines, agent_id=scenario.agent_id)
     game = RoutingEnv(scenario, is_cav, human_params=hp,
                       reward_coefficients=task.reward_coefficients, observation_type=env.observations,
-                      humans_adapt=task.should_humans_adapt, human_init=humans)
+                      humans_adapt=task.should_humans_adapt, human_init=humans,
+                      day_demand=task.day_demand(env_seed))
     pstate = policy.init(jax.random.fold_in(jax.random.PRNGKey(env_seed), 0x2), game)
     # Phases 3-4: CAV training, then test with frozen policies.
     cav_days = _CavDays(game, policy, env_seed, executor, bar, sink, sumo)
@@ -167,6 +169,8 @@ class _CavDays:
         paid = np.zeros(game.n_agents, dtype=rewards_c.dtype)
         paid[game.cav_index] = rewards_c
         rewards = np.where(game.is_cav, paid, -times)
+        if game.day_demand is not None:  # stayed home (day_participation): no trip, no reward
+            rewards = np.where(choices == ABSENT, np.nan, rewards)
         return DayRecord(day, phase, choices, game.is_cav, res, rewards, obs_all, self.sumo)
 
 
