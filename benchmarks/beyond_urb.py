@@ -212,9 +212,11 @@ def _label(run: dict) -> str:
 
 
 FLEETS = ["## Competing fleets", "",
-          "Reserved for the competing-fleets experiment (several CAV operators with their own objectives on "
-          "one network), which is being built separately; its tables and the commands that reproduce them "
-          "will be generated into this section.", ""]
+          "Two selfish CAV fleets of 20% on St. Arnoult, one IQL\\*, one MAPPO, trained together against "
+          "the one-fleet 40% runs of each algorithm with the same CAVs: `urb-jax suite two_fleets "
+          "--networks-dir DIR`. Its table (3 seeds, each fleet's drivers against themselves alone, under "
+          "AON and before the CAVs) is in [experiment.md](experiment.md), \"Competing CAV fleets\"; "
+          "this page does not generate it yet.", ""]
 
 
 def main() -> None:
