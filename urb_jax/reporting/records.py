@@ -434,13 +434,7 @@ def write_plots(folder: Path, records: pd.DataFrame, human_days: int, training_d
     fig, ax = plt.subplots(figsize=(9, 4.5))
     plot_phases(ax, per_day.rolling(max(smooth_by, 1), min_periods=1).mean(), H, T, last_day,
                 " (agents by final kind)")
-    ax.set_xlabel("day")
-    ax.set_ylabel("mean travel time (min)")
-    ax.legend(fontsize=8, loc="best")
-    fig.tight_layout()
-    p1 = out / "travel_times.png"
-    fig.savefig(p1, dpi=110)
-    plt.close(fig)
+    p1 = _save_travel_times(fig, ax, out / "travel_times.png")
     test = rec[rec["day"] > H + T]
     fig, ax = plt.subplots(figsize=(7, 4))
     if len(test):
@@ -471,11 +465,18 @@ def write_plots(folder: Path, records: pd.DataFrame, human_days: int, training_d
     for col in ["HDV", *fleets]:
         if col in smooth:
             ax.plot(smooth.index, smooth[col], lw=1.2, label=col if col != "HDV" else "humans")
+    p3 = _save_travel_times(fig, ax, out / "fleets_travel_times.png")
+    return [p1, p2, p3]
+
+
+def _save_travel_times(fig: Any, ax: Any, path: Path) -> Path:
+    """A travel-times-over-days figure's axes labelled, written to `path` and closed."""
+    import matplotlib.pyplot as plt
+
     ax.set_xlabel("day")
     ax.set_ylabel("mean travel time (min)")
     ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
-    p3 = out / "fleets_travel_times.png"
-    fig.savefig(p3, dpi=110)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
-    return [p1, p2, p3]
+    return path
