@@ -51,7 +51,7 @@ def surrogate_env_from_run(run: str | Path) -> RunEnv:
     if not len(human.calib_choices):
         raise UrbJaxError(f"{folder}: the run recorded no calibration days (--mode sumo). Fix: use a hybrid "
                           "or surrogate run.")
-    static = build_static(setup.scn)
+    static = build_static(setup.scn, setup.hyb.surrogate_config)
     params = calibrate(uncalibrated(static), static, human, setup.hyb)
     is_cav = draw_cavs(env_seed, setup.scn.n_agents, setup.task.ratio_machines, agent_id=setup.scn.agent_id)
     kwargs = routing_env_kwargs(setup.task, setup.env, env_seed)
