@@ -141,3 +141,19 @@ def test_queue_model_gradients_are_finite_and_match_finite_differences(grid_queu
 def test_unknown_model_is_refused(grid_scenario):
     with pytest.raises(ValueError, match="queue"):
         build_static(grid_scenario, SurrogateConfig(model="ctm"))
+
+
+def test_hybrid_config_key_selects_the_model():
+    from urb_jax.core.errors import ConfigError
+    from urb_jax.training.hybrid.plan import HybridConfig
+
+    assert HybridConfig().surrogate_config.model == "bpr"
+    assert HybridConfig(surrogate_model="queue").surrogate_config.model == "queue"
+    with pytest.raises(ConfigError, match="surrogate_model"):
+        HybridConfig(surrogate_model="ctm")
+
+
+def test_bpr_static_and_params_carry_no_queue(grid_scenario):
+    static = build_static(grid_scenario)
+    assert static.queue is None
+    assert not {"log_cap_j", "log_cap_e", "log_spill", "log_storage"} & set(init_params(static))
