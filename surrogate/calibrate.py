@@ -8,7 +8,7 @@ toward their class value (and, in `refit`, every parameter toward the previous f
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 
 import jax
@@ -19,6 +19,7 @@ import optax
 from urb_jax.city.scenario import Scenario
 from urb_jax.sumo_bridge.types import ARRIVED, DayResult
 from urb_jax.surrogate.model import (
+    JUNCTION_CLASSES,
     Static,
     SurrogateConfig,
     build_static,
@@ -26,8 +27,15 @@ from urb_jax.surrogate.model import (
     predict,
     predict_bucketed,
 )
+from urb_jax.surrogate.queue import init_queue_params
 
 Params = dict[str, jax.Array]
+
+
+def start_queue(static: Static) -> Params:
+    """The queue model's own parameters at their start."""
+    assert static.queue is not None
+    return init_queue_params(static.queue, len(JUNCTION_CLASSES))
 
 
 @dataclass(frozen=True)
@@ -72,6 +80,7 @@ class FitConfig:
     agent_prior: float = 1e-3  # L2 weight on per-agent log speed factors (prior toward 1)
     anchor: float = 0.0  # L2 weight toward the starting parameters (refit)
     frozen: tuple[str, ...] = ()  # parameter names kept at their starting value (ablations)
+    queue_steps: int = 300  # `calibrate` of the queue model: steps of the joint fit after the BPR fit
 
 
 REFIT = FitConfig(steps=150, anchor=1e-2)
@@ -90,6 +99,8 @@ def loss_fn(params: Params, static: Static, sample: dict[str, jax.Array], anchor
     mean_term = (((pm - ym) / ym) ** 2).mean()
     prior = fit.edge_prior * sum((params[k] ** 2).sum() for k in EDGE_KEYS)
     prior = prior + fit.agent_prior * (params["log_agent"] ** 2).sum()
+    if "log_cap_e" in params:  # the queue model: per-edge capacity deviations, toward the class
+        prior = prior + fit.edge_prior * (params["log_cap_e"] ** 2).sum()
     anchor = sum(((params[k] - anchor_params[k]) ** 2).sum() for k in params)
     return agent_term + fit.mean_weight * mean_term + prior + fit.anchor * anchor
 
@@ -174,8 +185,14 @@ def calibrate(
     the same days, as a training run calibrates its surrogate (`route_bias_prior_days` None: no
     residual, the smooth model alone)."""
     static = static if static is not None else build_static(scenario, config or SurrogateConfig())
-    return fit_with_bias(uncalibrated(static), static, sumo_days, fit or FitConfig(), sumo_days,
-                         route_bias_prior_days)
+    fit = fit or FitConfig()
+    start = uncalibrated(static)
+    if static.queue is not None:  # the queue model: the BPR part fitted first, then all of it
+        bpr = replace(static, queue=None)
+        start = {**fit_params(without_bias(uncalibrated(bpr)), bpr, sumo_days, fit), **start_queue(static),
+                 "route_bias": start["route_bias"]}
+        fit = replace(fit, steps=fit.queue_steps)
+    return fit_with_bias(start, static, sumo_days, fit, sumo_days, route_bias_prior_days)
 
 
 def refit(

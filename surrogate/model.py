@@ -22,7 +22,7 @@ that keeps the working set in cache. See docs/surrogate.md for what each term bu
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 
 import jax
@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
+from urb_jax.surrogate.queue import QueueIndex, build_queue_index, init_queue_params, queue_route_delays
 
 # Junction classes for the junction/signal delay term (the edge's downstream junction).
 JUNCTION_CLASSES = ("traffic_light", "priority", "right_before_left", "other")
@@ -45,13 +46,19 @@ class SurrogateConfig:
     origin_window_s: float = 60.0  # insertion-load window: same-origin departures in (d - w, d]
     chunk: int = 128  # batch chunk per map step (cache-sized working set)
     interpolate: bool = True  # split each edge entry between the two nearest bins (else: hard bins)
+    model: str = "bpr"  # "bpr" (this module alone) or "queue" (plus surrogate/queue.py's point queues)
+    queue_passes: int = 2  # queue model: passes that move entry times by the queues met upstream
+    queue_spill: bool = True  # queue model: spill-back of queues beyond an edge's storage
+
+
+MODELS = ("bpr", "queue")
 
 
 @partial(
     jax.tree_util.register_dataclass,
     data_fields=[
         "flow_row", "flow_cell", "flow_w", "time_row", "time_cell", "time_w",
-        "cell_edge", "cell_cap", "edge_t0", "edge_class", "edge_jclass", "origin_load",
+        "cell_edge", "cell_cap", "edge_t0", "edge_class", "edge_jclass", "origin_load", "queue",
     ],
     meta_fields=["n", "k", "n_cells", "n_edges", "n_classes", "power", "chunk"],
 )
@@ -78,6 +85,7 @@ class Static:
     n_classes: int
     power: int
     chunk: int
+    queue: QueueIndex | None = None  # the queue model's entries (None: the BPR model)
 
 
 def junction_types(net_file: str, edge_ids: tuple[str, ...]) -> list[str]:
@@ -125,6 +133,8 @@ def _origin_load(scn: Scenario, window: float) -> np.ndarray:
 
 def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig()) -> Static:
     """Precompute the (agent, route, edge, bin) entries, the compact cells and the edge features."""
+    if config.model not in MODELS:
+        raise ValueError(f"surrogate model {config.model!r} is not one of {', '.join(MODELS)}")
     routes = scn.routes  # [N, K, L]
     N, K, _ = routes.shape
     t0 = (scn.edge_length / scn.edge_speed).astype(np.float64)
@@ -164,6 +174,8 @@ def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig()) -> 
         origin_load=f32(_origin_load(scn, config.origin_window_s)),
         n=N, k=K, n_cells=len(uniq), n_edges=scn.n_edges, n_classes=int(cls.max()) + 1,
         power=config.bpr_power, chunk=config.chunk,
+        queue=(build_queue_index(scn, config.entry_scale, config.bin_s, config.queue_passes,
+                                 config.queue_spill, jcls) if config.model == "queue" else None),
     )
 
 
@@ -174,6 +186,8 @@ def init_params(static: Static) -> dict[str, jax.Array]:
     (regularised toward 0 during calibration).
     """
     nc, ne, nj = static.n_classes, static.n_edges, len(JUNCTION_CLASSES)
+    if static.queue is not None:
+        return {**init_params(replace(static, queue=None)), **init_queue_params(static.queue, nj)}
     return {
         "log_speed_c": jnp.zeros(nc),  # multiplier on free-flow time
         "log_speed_e": jnp.zeros(ne),
@@ -223,11 +237,30 @@ def _day_chunk(chunk_in: jax.Array, base_c, a_c, static: Static) -> jax.Array:
     return (chunk_in * R).sum(axis=1)
 
 
+def _queue_day_chunk(chunk_in: jax.Array, base_c, a_c, g: jax.Array, params, static: Static) -> jax.Array:
+    """`_day_chunk` of the queue model: g_n R^BPR + the route's queue delay, [N, b] seconds."""
+    assert static.queue is not None
+    N, K = static.n, static.k
+    if chunk_in.ndim == 2:
+        X = (chunk_in[:, None, :] == jnp.arange(K, dtype=chunk_in.dtype)[None, :, None])
+        X = X.astype(jnp.float32).reshape(N * K, -1)
+    else:
+        X = chunk_in.reshape(N * K, -1)
+    R = _route_times(X, base_c, a_c, static) * jnp.repeat(g, K)[:, None]
+    R = (R + queue_route_delays(params, static.queue, X)).reshape(N, K, -1)
+    if chunk_in.ndim == 2:
+        return jnp.take_along_axis(R, chunk_in[:, None, :], axis=1)[:, 0]
+    return (chunk_in * R).sum(axis=1)
+
+
 def route_times_seconds(params, static: Static, probs: jax.Array) -> jax.Array:
     """[B, N, K] probabilities -> [B, N, K] time of every route given the flows (s, no insertion)."""
     base, a = edge_terms(params, static)
     X = jnp.moveaxis(probs, 0, -1).reshape(static.n * static.k, -1)
     R = _route_times(X, base[static.cell_edge], a[static.cell_edge], static)
+    if static.queue is not None:
+        R = R * jnp.exp(params["log_agent"])[:, None] + queue_route_delays(params, static.queue, X)
+        return jnp.moveaxis(R.reshape(static.n, static.k, -1), -1, 0)
     R = R.reshape(static.n, static.k, -1) * jnp.exp(params["log_agent"])[:, None, None]
     return jnp.moveaxis(R, -1, 0)
 
@@ -250,18 +283,27 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
     if not is_prob:
         x = x.astype(jnp.int32)
     size = static.chunk
+
+    def day_chunk(c: jax.Array) -> jax.Array:
+        if static.queue is None:
+            return _day_chunk(c, base_c, a_c, static)
+        return _queue_day_chunk(c, base_c, a_c, jnp.exp(params["log_agent"]), params, static)
+
     if size >= B:
-        sec = _day_chunk(x, base_c, a_c, static)
+        sec = day_chunk(x)
     else:
         n_chunks = -(-B // size)
         pad = n_chunks * size - B
         if pad:
             x = jnp.concatenate([x, jnp.zeros((*x.shape[:-1], pad), x.dtype)], axis=-1)
         xs = jnp.moveaxis(x.reshape((*x.shape[:-1], n_chunks, size)), -2, 0)
-        out = jax.lax.map(lambda c: _day_chunk(c, base_c, a_c, static), xs)  # [n_chunks, N, size]
+        out = jax.lax.map(day_chunk, xs)  # [n_chunks, N, size]
         sec = jnp.moveaxis(out, 0, 1).reshape(static.n, -1)[:, :B]
     ins = jnp.exp(params["log_ins"]) * static.origin_load[:, None]
-    sec = sec * jnp.exp(params["log_agent"])[:, None] + ins + params["intercept"]
+    if static.queue is None:
+        sec = sec * jnp.exp(params["log_agent"])[:, None] + ins + params["intercept"]
+    else:  # the per-agent factor is already on the BPR part only
+        sec = sec + ins + params["intercept"]
     out = sec.T / 60.0
     if "route_bias" in params:  # [N, K] minutes: SUMO's residual on routes it has seen (route_bias())
         bias = params["route_bias"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -115,8 +115,10 @@ def validate(scn: Scenario, out_dir: Path, vcfg: ValidationConfig | None = None,
     out_dir.mkdir(parents=True, exist_ok=True)
     static = build_static(scn, config)
     p0 = init_params(static)
-    c_tr, _ = make_choices(scn, static, p0, vcfg.train_days, seed=1)
-    c_te, kinds = make_choices(scn, static, p0, vcfg.test_days, seed=2)
+    # the days are drawn with the BPR model whichever model is validated: every model meets the same days
+    bpr = static if config.model == "bpr" else build_static(scn, replace(config, model="bpr"))
+    c_tr, _ = make_choices(scn, bpr, init_params(bpr), vcfg.train_days, seed=1)
+    c_te, kinds = make_choices(scn, bpr, init_params(bpr), vcfg.test_days, seed=2)
     t0 = time.perf_counter()
     tr = SumoSample.from_days(c_tr, _days(vcfg, scn, c_tr, vcfg.seed, workers=vcfg.workers))
     te = SumoSample.from_days(c_te, _days(vcfg, scn, c_te, vcfg.seed, workers=vcfg.workers))

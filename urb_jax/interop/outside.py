@@ -55,7 +55,7 @@ def surrogate_env_from_run(run: str | Path) -> RunEnv:
         raise UrbJaxError(f"{folder}: the run's task has fleets (key 'fleets'), each with its own learner; "
                           "an outside policy stands for one fleet of every CAV. Fix: use a run without "
                           "fleets.")
-    static = build_static(setup.scn)
+    static = build_static(setup.scn, setup.hyb.surrogate_config)
     params = calibrate(uncalibrated(static), static, human, setup.hyb)
     is_cav = draw_cavs(env_seed, setup.scn.n_agents, setup.task.ratio_machines, agent_id=setup.scn.agent_id)
     kwargs = routing_env_kwargs(setup.task, setup.env, env_seed)

@@ -150,7 +150,7 @@ def _varied_days(scn: Scenario, cfg: HybridConfig, executor: DayExecutor, env_se
 def _human_model(scn: Scenario, cfg: HybridConfig, choices: list[np.ndarray], results: list[DayResult]
                  ) -> Callable[[jnp.ndarray], jnp.ndarray]:
     """The surrogate fitted to the varied days, as the travel-time model of the humans' first days."""
-    static = build_static(scn)
+    static = build_static(scn, cfg.surrogate_config)
     sample = SumoSample(np.stack(choices).astype(np.int32),
                         np.stack([r.travel_time for r in results]).astype(np.float32),
                         np.stack([r.status == ARRIVED for r in results]))

@@ -19,6 +19,8 @@ from urb_jax.core.ranges import DAYS, ENVS, STEPS, WORKERS, Range, above, betwee
 from urb_jax.game.env import RoutingEnv
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.surrogate.calibrate import ROUTE_BIAS_PRIOR_DAYS
+from urb_jax.surrogate.model import MODELS as SURROGATE_MODELS
+from urb_jax.surrogate.model import SurrogateConfig
 
 SEED_AXES = ("auto", "vmap", "map")  # how a group's seeds share one program (hybrid/fns.py)
 # The config of any algorithm of urb_jax.algorithms.registry.ALGORITHMS.
@@ -58,6 +60,9 @@ class HybridConfig:
     # SUMO's emission device on every SUMO day (SumoConfig.emissions): records get co2_g and fuel_mg,
     # the metric files the emission totals (docs/metrics.md, "Emissions"). Off: a day costs ~10% less.
     emissions: bool = False
+    # The surrogate the learners train on: "bpr" (time-dependent BPR) or "queue" (BPR plus
+    # departure-ordered point queues with spill-back; docs/surrogate.md has both and their fidelity)
+    surrogate_model: str = "bpr"
 
     RANGES: ClassVar[dict[str, Range]] = {
         "train_days": between(1, DAYS), "num_envs": between(1, ENVS),
@@ -76,6 +81,9 @@ class HybridConfig:
         if self.surrogate_days_per_round + self.sumo_days_per_round < 1:
             raise ConfigError("keys 'surrogate_days_per_round' and 'sumo_days_per_round' are both 0: a round "
                               "would train on nothing. Fix: make one of them positive.")
+        if self.surrogate_model not in SURROGATE_MODELS:
+            raise ConfigError(f"key 'surrogate_model' is {self.surrogate_model!r}. Fix: use one of "
+                              f"{', '.join(SURROGATE_MODELS)}.")
         if self.seed_axis not in SEED_AXES:
             raise ConfigError(f"key 'seed_axis' is {self.seed_axis!r}. Fix: use one of "
                               f"{', '.join(SEED_AXES)}.")
@@ -84,6 +92,11 @@ class HybridConfig:
     def sumo_config(self) -> SumoConfig:
         """The SumoConfig this run's SUMO days run with (the day store keys on it)."""
         return SumoConfig(emissions=self.emissions)
+
+    @property
+    def surrogate_config(self) -> SurrogateConfig:
+        """The structure of the surrogate this run trains on."""
+        return SurrogateConfig(model=self.surrogate_model)
 
     @property
     def bias_prior(self) -> float | None:

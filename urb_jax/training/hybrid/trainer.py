@@ -159,7 +159,7 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
     `humans`: the human phase's; None for a resume (then a placeholder the checkpoint replaces)."""
     if mode not in MODES:
         raise ValueError(f"mode {mode!r}: use one of {MODES}")
-    is_cav, static, env_kwargs, env = _group_env(scn, task, env_cfg, env_seed, humans)
+    is_cav, static, env_kwargs, env = _group_env(scn, task, env_cfg, env_seed, humans, cfg)
     p0 = uncalibrated(static)
     given = alg_config  # the hint and the probe's learner start from it: fitting changes it
     plan = _plan(alg, given, env, cfg, mode)
@@ -216,12 +216,12 @@ def resumed_plan(folder: Path, plan: RoundPlan, train_days: int) -> RoundPlan:
     return plan
 
 
-def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: int, humans: HumanState | None
-               ) -> tuple[np.ndarray, Static, dict[str, Any], RoutingEnv]:
+def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: int, humans: HumanState | None,
+               cfg: HybridConfig) -> tuple[np.ndarray, Static, dict[str, Any], RoutingEnv]:
     """(is_cav [N], static, env kwargs, the surrogate env, uncalibrated). `humans` None: a placeholder
     of the right shapes (a resume's checkpoint, or a dry run, replaces it)."""
     is_cav = draw_cavs(env_seed, scn.n_agents, task.ratio_machines, agent_id=scn.agent_id)
-    static = build_static(scn)
+    static = build_static(scn, cfg.surrogate_config)
     env_kwargs = routing_env_kwargs(task, env_cfg, env_seed, is_cav)
     if humans is None:
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid),
@@ -233,7 +233,7 @@ def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: in
 def budget_plan(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, alg_config: AlgoConfig,
                 cfg: HybridConfig, mode: str, env_seed: int) -> RoundPlan:
     """The rounds `setup_group` would plan, without a human phase (for a dry run)."""
-    return _plan(alg, alg_config, _group_env(scn, task, env_cfg, env_seed, None)[3], cfg, mode)
+    return _plan(alg, alg_config, _group_env(scn, task, env_cfg, env_seed, None, cfg)[3], cfg, mode)
 
 
 def budget_text(plan: RoundPlan, train_days: int) -> str:
