@@ -70,7 +70,7 @@ def test_emitted_actions_greedy_and_exploring():
                        [1, 0, 1]])
     np.testing.assert_array_equal(np.asarray(greedy[0]), expect)
     mask = jnp.array([[True, False], [True, True], [True, True]])  # CAV0 has one valid route
-    days = Day(*(jnp.repeat(x, 400, axis=0) for x in one_day()))
+    days = jax.tree.map(lambda x: jnp.repeat(x, 400, axis=0), one_day())  # Day.active None: no leaf
     eps = jnp.asarray(1.0)
     drawn = np.asarray(emit_frame_actions(jax.random.PRNGKey(1), q_table, mask, eps, days, TURN, K))
     for cav, turn in enumerate(np.asarray(TURN)):
@@ -130,7 +130,7 @@ def test_frames_config_checked():
 def test_ppo_frames_gae_across_a_days_frames():
     """Critic 0, lambda 1: every row's advantage is gamma^(frames to the day's end) x its day reward,
     so the executed decision of an early CAV sees its reward discounted C - 1 - turn times."""
-    days = Day(*(jnp.stack([x, x]) for x in one_day()))  # [T=2, B=1, C=3, ...]
+    days = jax.tree.map(lambda x: jnp.stack([x, x]), one_day())  # [T=2, B=1, C=3, ...]
     logits = lambda obs: jnp.zeros((*obs.shape[:-1], K))  # noqa: E731
     values = lambda obs: jnp.zeros(obs.shape[:-1])  # noqa: E731
     batch = ippo.frame_batch(logits, values, days, TURN, K, jax.random.PRNGKey(0), 0.5, 1.0)
