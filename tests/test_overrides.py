@@ -20,7 +20,7 @@ from urb_jax.runs.request import ResumeRequest, TrainRequest
 from urb_jax.runs.urb_configs import OVERRIDES_KEY, TRAIN_SECTIONS
 
 URB_CONFIG = Path(__file__).resolve().parents[1].parent / "shared" / "urb" / "config"
-REQUEST = TrainRequest(net="urb_grid")
+REQUEST = TrainRequest(net="urb_grid", alg="iql")  # what a request without --alg resolves to
 
 
 def test_values_are_json_and_bare_words_text() -> None:

@@ -231,7 +231,7 @@ def check_emission_source(setup: TrainSetup, executor: object | None) -> None:
     (a suite's, an API caller's, a test's stand-in) needs one that runs SUMO's emission device: its
     days would otherwise reach the records without CO2 and fuel, so it is refused before any day.
     An executor the run makes itself is made with the device (`HybridConfig.sumo_config`)."""
-    if not setup.hyb.emissions or executor is None:
+    if executor is None or not setup.hyb.emissions:
         return
     config = getattr(executor, "config", None)
     if isinstance(config, SumoConfig) and config.emissions:
