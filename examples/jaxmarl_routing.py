@@ -38,7 +38,7 @@ def grid_env() -> Any:
     humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid),
                          task.human_params())
     is_cav = draw_cavs(42, scn.n_agents, task.ratio_machines, agent_id=scn.agent_id)
-    kwargs = routing_env_kwargs(task, EnvConfig())
+    kwargs = routing_env_kwargs(task, EnvConfig(), 42)  # env seed 42: the draw above
     return surrogate_env(scn, is_cav, static, humans, uncalibrated(static), kwargs)
 
 

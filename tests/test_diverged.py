@@ -42,8 +42,8 @@ def test_a_run_whose_learner_diverges_stops_before_writing_metrics(confs, tmp_pa
     exit 2 and the message, round 1's checkpoint the newest, no metric file, no metrics printed."""
     leg = trainer_module.HybridTrainer.surrogate_leg
 
-    def poisoned(self, k_sur, rows):
-        leg(self, k_sur, rows)
+    def poisoned(self, k_sur, rows, *iters):
+        leg(self, k_sur, rows, *iters)
         if len(self.rounds_logs[0]) == 1:  # round 2 (round 1 is logged)
             params = jax.tree_util.tree_map(lambda x: x * np.nan, self.state.runner.params)
             self.state = self.state._replace(runner=self.state.runner._replace(params=params))
