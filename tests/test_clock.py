@@ -150,7 +150,9 @@ def test_a_run_with_urbs_config1_gets_the_hybrid_hint(tmp_path, capsys, monkeypa
     from urb_jax.training.hybrid import clock
 
     monkeypatch.setattr(clock, "SLOW_S", 0.0)  # every training counts as slow
-    hyb = {"train_days": 20, "num_envs": 2, "surrogate_days_per_round": 8, "sumo_days_per_round": 2,
+    # a round of one whole iteration of URB's config1 (320 days): a budget exactly as asked trains
+    # no surrogate iteration in a shorter round, and says no estimate
+    hyb = {"train_days": 644, "num_envs": 2, "surrogate_days_per_round": 320, "sumo_days_per_round": 2,
            "sumo_workers": 1, "calib_human_days": 5, "calib_varied_days": 2, "calib_steps": 20,
            "refit_days": 4, "refit_steps": 5}
     (tmp_path / "hyb.json").write_text(json.dumps(hyb))
