@@ -288,6 +288,16 @@ def oom_workers(monkeypatch):
     return lambda mode: monkeypatch.setenv(oom_worker.MODE, mode)
 
 
+def _stop_message(tmp_path, phase: str, error: Exception) -> str:
+    """What a run in `phase` says when `error` ends it (its clean stop's OutOfMemoryError)."""
+    folder = tmp_path / "run"
+    folder.mkdir()
+    with pytest.raises(OutOfMemoryError) as stopped, stops_cleanly([folder]):
+        enter_phase(phase)
+        raise error
+    return str(stopped.value)
+
+
 @pytest.mark.parametrize("mode, reason", [("memory", "ran out of memory (MemoryError)"),
                                           ("kill", "killed by SIGKILL")])
 def test_a_sumo_worker_out_of_memory_twice_is_a_memory_error_with_sumos_hint(oom_workers, grid_scenario,
@@ -304,12 +314,7 @@ def test_a_sumo_worker_out_of_memory_twice_is_a_memory_error_with_sumos_hint(oom
     assert msg.splitlines()[0].startswith("SUMO day 0 (seed 3) of network urb_grid failed twice, memory ")
     assert SUMO_MEMORY_HINT in msg and "hybrid.sumo_workers" in msg and msg.count(reason) == 2
     assert is_out_of_memory(caught.value)
-    folder = tmp_path / "run"
-    folder.mkdir()
-    with pytest.raises(OutOfMemoryError) as stopped, stops_cleanly([folder]):
-        enter_phase("the human phase (human SUMO days, calibration days)")
-        raise caught.value
-    out = str(stopped.value)
+    out = _stop_message(tmp_path, "the human phase (human SUMO days, calibration days)", caught.value)
     assert "out of memory during the human phase (human SUMO days, calibration days)" in out
     assert "SumoOutOfMemoryError: SUMO day 0 (seed 3)" in out and SUMO_MEMORY_HINT in out
     assert "hybrid.num_envs" not in out  # the main process's hint is not SUMO's
@@ -332,12 +337,7 @@ def test_a_sumo_day_out_of_memory_in_process_names_sumo_and_the_learners(grid_sc
         InProcessExecutor().run_days(grid_scenario, grid_scenario.fft.argmin(1)[None], [3])
     assert "a SUMO day of network urb_grid ran out of memory in this process" in str(caught.value)
     assert "std::bad_alloc" in str(caught.value) and is_out_of_memory(caught.value)
-    folder = tmp_path / "run"
-    folder.mkdir()
-    with pytest.raises(OutOfMemoryError) as stopped, stops_cleanly([folder]):
-        enter_phase("round 2 of 3: the SUMO leg")
-        raise caught.value
-    out = str(stopped.value)
+    out = _stop_message(tmp_path, "round 2 of 3: the SUMO leg", caught.value)
     assert "out of memory during round 2 of 3: the SUMO leg" in out and IN_PROCESS_MEMORY_HINT in out
     assert MEMORY_HINT not in out and "hybrid.sumo_workers=N" not in out
 
