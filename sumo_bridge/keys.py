@@ -32,10 +32,8 @@ def scenario_key(scenario: Scenario) -> str:
     the agents (ids, OD rows, departures, kinds)."""
     key = _SCENARIO_KEYS.get(scenario)
     if key is None:
-        h = hashlib.sha256(Path(scenario.net_file).read_bytes())
-        h.update("\n".join(scenario.edge_ids).encode())
-        for arr in (scenario.od_routes, scenario.od_route_len, scenario.agent_id, scenario.agent_od,
-                    scenario.agent_depart):
+        h = hashlib.sha256(routes_key(scenario).encode())
+        for arr in (scenario.agent_id, scenario.agent_od, scenario.agent_depart):
             a = np.ascontiguousarray(arr)
             h.update(f";{a.dtype.str}{a.shape};".encode())
             h.update(a.tobytes())
@@ -43,6 +41,30 @@ def scenario_key(scenario: Scenario) -> str:
         key = h.hexdigest()[:16]
         _SCENARIO_KEYS[scenario] = key
     return key
+
+
+def routes_key(scenario: Scenario) -> str:
+    """Content hash of what a Scenario's route file and network hold: the network file's bytes, the
+    edge ids and the route table (not the agents: a day's departures do not change it)."""
+    h = hashlib.sha256(_file_digest(str(scenario.net_file), *_stat(scenario.net_file)).encode())
+    h.update("\n".join(scenario.edge_ids).encode())
+    for arr in (scenario.od_routes, scenario.od_route_len):
+        a = np.ascontiguousarray(arr)
+        h.update(f";{a.dtype.str}{a.shape};".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def _stat(path: str | Path) -> tuple[int, int]:
+    st = Path(path).stat()
+    return st.st_size, st.st_mtime_ns
+
+
+@functools.lru_cache(maxsize=64)
+def _file_digest(path: str, size: int, mtime_ns: int) -> str:
+    """sha256 of a file's bytes, read once per (path, size, mtime): Scenarios that differ only in their
+    agents (a day's departures) share their network."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 # The modules whose code decides a day's DayResult from the inputs above (insertion, stuck rule,

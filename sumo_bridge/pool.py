@@ -30,7 +30,14 @@ from urb_jax.core.interrupt import ignore_stop_signals
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.sumo_bridge.keys import sumo_version
 from urb_jax.sumo_bridge.logs import log_folder, log_tail, redirect_fds
-from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, memory_error_text, schedule_days
+from urb_jax.sumo_bridge.scheduler import (
+    DayJob,
+    Failed,
+    KeptScenarios,
+    SumoDayError,
+    memory_error_text,
+    schedule_days,
+)
 from urb_jax.sumo_bridge.sim import Simulator
 from urb_jax.sumo_bridge.types import DayResult
 
@@ -48,7 +55,7 @@ def _worker_main(conn: Connection, config: SumoConfig, log_path: str) -> None:
 
 
 def _serve_days(conn: Connection, sim: Simulator) -> None:
-    scenarios: dict[str, Scenario] = {}
+    scenarios: KeptScenarios[Scenario] = KeptScenarios()
     conn.send(("ready", os.getpid()))
     while True:
         msg = conn.recv()
@@ -56,7 +63,7 @@ def _serve_days(conn: Connection, sim: Simulator) -> None:
             break
         _, tid, key, scn, choices, seed, is_cav, next_seed = msg
         if scn is not None:
-            scenarios[key] = scn
+            scenarios.add(key, scn)
         try:
             res = sim.run_day(scenarios[key], choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
             conn.send(("ok", tid, res))
@@ -80,7 +87,7 @@ class _Worker:
                                 name=f"sumo-worker-{index}", daemon=True)
         self.proc.start()
         child.close()
-        self.scenarios: set[str] = set()
+        self.scenarios: KeptScenarios[None] = KeptScenarios()  # what the worker holds
         self.task: int | None = None
         self.started = 0.0
 
@@ -146,7 +153,8 @@ class SumoPool:
             w.conn.send(("day", job.day, job.key, send_scn, job.choices, job.seed, job.is_cav, job.next_seed))
         except (BrokenPipeError, OSError) as exc:
             return _failed(w, f"worker {w.index} could not take the day ({exc!r})")
-        w.scenarios.add(job.key)
+        if send_scn is not None:
+            w.scenarios.add(job.key, None)
         return None
 
     def wait(self, busy: list[_Worker], timeout: float) -> dict[int, DayResult | Failed]:

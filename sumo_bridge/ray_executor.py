@@ -36,7 +36,14 @@ from urb_jax.core.errors import UrbJaxError
 from urb_jax.sumo_bridge.config import SumoConfig
 from urb_jax.sumo_bridge.keys import scenario_key, sumo_version
 from urb_jax.sumo_bridge.logs import log_folder, log_tail
-from urb_jax.sumo_bridge.scheduler import DayJob, Failed, SumoDayError, memory_error_text, schedule_days
+from urb_jax.sumo_bridge.scheduler import (
+    DayJob,
+    Failed,
+    KeptScenarios,
+    SumoDayError,
+    memory_error_text,
+    schedule_days,
+)
 from urb_jax.sumo_bridge.sim import Simulator
 from urb_jax.sumo_bridge.types import DayResult
 
@@ -104,7 +111,7 @@ class SumoActor:
             adds.append(str(local))
         self.sim = Simulator(dataclasses.replace(config, additional_files=tuple(adds)),
                              console_warnings=True)
-        self.scenarios: dict[str, Scenario] = {}
+        self.scenarios: KeptScenarios[Scenario] = KeptScenarios()
 
     def ready(self) -> tuple[int, str, str]:
         """(pid, node address, log path) once the Simulator is up."""
@@ -127,7 +134,8 @@ class SumoActor:
                 net = self.files / key / name
                 net.parent.mkdir(exist_ok=True)
                 net.write_bytes(data)
-                self.scenarios[key] = dataclasses.replace(scn, net_file=str(net))
+                for gone in self.scenarios.add(key, dataclasses.replace(scn, net_file=str(net))):
+                    shutil.rmtree(self.files / gone, ignore_errors=True)
             scn = self.scenarios[key]
             return "ok", self.sim.run_day(scn, choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
         except MemoryError:
@@ -150,7 +158,7 @@ class _Slot:
     pid: int = 0
     node: str = ""
     log_path: str = ""
-    scenarios: set[str] = dataclasses.field(default_factory=set)
+    scenarios: KeptScenarios[None] = dataclasses.field(default_factory=KeptScenarios)  # the actor's
     task: int | None = None
     ref: ObjectRef | None = None  # the day in flight
     started: float = 0.0
@@ -265,7 +273,8 @@ class RayExecutor:
     def submit(self, s: _Slot, job: DayJob) -> Failed | None:
         send = None if job.key in s.scenarios else self.put_scenario(job.scenario)
         s.ref = s.actor.run_day.remote(job.key, send, job.choices, job.seed, job.is_cav, job.next_seed)
-        s.scenarios.add(job.key)
+        if send is not None:
+            s.scenarios.add(job.key, None)
         return None
 
     def wait(self, busy: list[_Slot], timeout: float) -> dict[int, DayResult | Failed]:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import time
 import traceback
-from collections import deque
+from collections import OrderedDict, deque
 from typing import Generic, NamedTuple, Protocol, TypeVar
 
 import numpy as np
@@ -87,6 +87,34 @@ class Slot(Protocol):
     index: int  # position in the backend's `slots`, kept by a restart
     task: int | None  # day index in the batch, None when idle
     started: float  # time.monotonic() when the day was handed over
+
+
+KEPT_SCENARIOS = 16  # scenarios a worker keeps (a run with day-varying departures sends one a day)
+V = TypeVar("V")
+
+
+class KeptScenarios(Generic[V]):
+    """The scenarios a worker holds, by scenario key, the oldest dropped beyond `KEPT_SCENARIOS`.
+    The executor and its worker each keep one and add the same keys in the same order (the executor
+    when it sends a scenario, the worker when it receives one), so the executor knows what the worker
+    still has. `add` returns the keys it dropped."""
+
+    def __init__(self) -> None:
+        self.items: OrderedDict[str, V] = OrderedDict()
+
+    def __contains__(self, key: object) -> bool:
+        return key in self.items
+
+    def __getitem__(self, key: str) -> V:
+        return self.items[key]
+
+    def add(self, key: str, value: V) -> list[str]:
+        self.items[key] = value
+        self.items.move_to_end(key)
+        dropped = []
+        while len(self.items) > KEPT_SCENARIOS:
+            dropped.append(self.items.popitem(last=False)[0])
+        return dropped
 
 
 class DayJob(NamedTuple):

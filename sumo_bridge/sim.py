@@ -29,7 +29,7 @@ from urb_jax.city.demand import ABSENT
 from urb_jax.city.scenario import Scenario
 from urb_jax.sumo_bridge.batch import as_batch, cav_mask, check_choices
 from urb_jax.sumo_bridge.config import SumoConfig
-from urb_jax.sumo_bridge.keys import scenario_key, sumo_version
+from urb_jax.sumo_bridge.keys import routes_key, sumo_version
 from urb_jax.sumo_bridge.logs import redirect_fds
 from urb_jax.sumo_bridge.scheduler import out_of_memory_in_process
 from urb_jax.sumo_bridge.tripinfo import insertion_order, parse_tripinfo, route_id, write_routes_file
@@ -87,7 +87,7 @@ class Simulator:
 
     # --- SUMO control -------------------------------------------------------------------
     def _routes_file(self, scenario: Scenario) -> Path:
-        path = self.workdir / f"routes-{scenario_key(scenario)}.add.xml"
+        path = self.workdir / f"routes-{routes_key(scenario)}.add.xml"  # one for any day's departures
         if not path.exists():
             write_routes_file(path, scenario)
         return path

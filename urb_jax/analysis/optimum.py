@@ -403,6 +403,11 @@ def run_references(folder: str | Path, networks_dir: str | None = None, cfg: Sea
                           f"{conf['day_participation']}: its days vary in who travels, and the optimum "
                           "and equilibrium references are defined for one fixed demand. Fix: ask for the "
                           "references of a run with day_participation 1.")
+    if int(conf.get("day_departure_jitter_s", 0)) > 0:
+        raise UrbJaxError(f"{folder / 'exp_config.json'}: key 'day_departure_jitter_s' = "
+                          f"{conf['day_departure_jitter_s']}: its days vary in when drivers leave, and the "
+                          "optimum and equilibrium references are defined for one fixed demand. Fix: ask for "
+                          "the references of a run with day_departure_jitter_s 0.")
     if conf.get("fleet_agents"):
         raise UrbJaxError(f"{folder / 'exp_config.json'}: the run has competing fleets (key 'fleets'); the "
                           "optimum and equilibrium references are defined for one fleet with one objective. "

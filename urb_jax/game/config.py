@@ -20,7 +20,7 @@ from urb_jax.core.configio import Loaded, Override, find_config, from_dict, load
 from urb_jax.core.errors import ConfigError
 from urb_jax.core.ranges import DAYS, FRACTION, Range, above, between, check_ranges
 from urb_jax.core.urb_keys import ENV_FAMILY, TASK_FAMILY
-from urb_jax.game.demand import DayDemand
+from urb_jax.game.demand import DayDemand, DepartureJitter
 from urb_jax.game.humans import HumanParams
 from urb_jax.game.observations import OBSERVATION_TYPES
 from urb_jax.game.rewards import CREDITS, behaviour_coefficients
@@ -123,6 +123,10 @@ class TaskConfig:
     # Demand that varies day to day (game.demand): each driver travels on a given day after mutation
     # with this probability, drawn anew each day from the env seed; 1: URB's fixed demand
     day_participation: float = 1.0
+    # Departure times that vary day to day (game.demand.DepartureJitter): after mutation each driver
+    # leaves at its scheduled second plus a uniform offset in [-J, J] s, drawn anew each day from the
+    # env seed; 0: URB's fixed departures
+    day_departure_jitter_s: int = 0
     # Competing CAV fleets (game.mutation.split_fleets; docs/experiment.md, "Competing CAV fleets"):
     # two or more FleetConfigs whose shares add up to ratio_machines, each with its own behaviour and
     # learner; empty: one fleet, the task's av_behavior and the run's --alg (URB)
@@ -139,6 +143,7 @@ class TaskConfig:
         "demand_jitter_s": between(0, DAY_LIMIT_S),
         "marginal_cost_beta": between(0, 1000, "URB: 0 to 5"),
         "day_participation": above(0, 1, "a driver's chance to travel on a day; 1: URB's fixed demand"),
+        "day_departure_jitter_s": between(0, 3600, "+- seconds around each scheduled departure; 0: URB's"),
     }
 
     def __post_init__(self) -> None:
@@ -197,6 +202,11 @@ class TaskConfig:
     def day_demand(self, env_seed: int) -> DayDemand | None:
         """Who travels each day after mutation under env seed `env_seed` (None: everyone, URB)."""
         return DayDemand(int(env_seed), self.day_participation) if self.varies_daily else None
+
+    def departure_jitter(self, env_seed: int) -> DepartureJitter | None:
+        """When drivers leave each day after mutation under env seed `env_seed` (None: as scheduled, URB)."""
+        jitter = int(self.day_departure_jitter_s)
+        return DepartureJitter(int(env_seed), jitter) if jitter > 0 else None
 
     @property
     def reward_coefficients(self) -> tuple[float, float, float, float]:

@@ -1,4 +1,5 @@
-"""Demand that varies day to day (the task's `day_participation`): which drivers travel today.
+"""Demand that varies day to day: which drivers travel today (the task's `day_participation`) and
+when they leave (`day_departure_jitter_s`).
 
 The URB paper's demand is fixed in OD pairs and departure times. With `day_participation = p < 1`
 each driver travels on a given day with probability p, independently of the other drivers and of
@@ -8,20 +9,34 @@ the same index see the same drivers, a resumed run replays the same days, and th
 streams are untouched. A driver who stays home chooses `ABSENT` (-1) in the day's joint choices:
 SUMO inserts no vehicle for it, the surrogate gives it no flow, no CAV observes it, it does not
 learn that day, and it is left out of the day's means.
+
+With `day_departure_jitter_s = J > 0` each driver leaves on a given day at its scheduled second plus
+an offset drawn uniformly from the integers in [-J, J] (never before second 0), a pure function of
+(env seed, day index) under its own stream (`DEPART_STREAM`). SUMO's day inserts every vehicle at
+its jittered second, and URB's travel time counts from it. The surrogate's days keep the scheduled
+departures: its index arrays (the time bin each route entry falls in, the insertion windows) are
+built once from them, so a surrogate day is the scheduled day, calibrated and refitted on SUMO days
+that carry the jitter. CAVs observe the scheduled departures (the jitter is noise around a plan
+they know).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from urb_jax.city.demand import ABSENT
+from urb_jax.city.scenario import Scenario
 
 DEMAND_STREAM = 0xDA7D  # fold_in tag of the participation draws: no other stream of the run uses it
+DEPART_STREAM = 0xDE9A  # fold_in tag of the departure-jitter draws
 
-__all__ = ["ABSENT", "DEMAND_STREAM", "DayDemand", "present_on", "travelled"]
+__all__ = ["ABSENT", "DEMAND_STREAM", "DEPART_STREAM", "DayDemand", "DepartureJitter", "jittered_departures",
+           "present_on", "travelled"]
 
 
 @dataclass(frozen=True)
@@ -47,3 +62,33 @@ def present_on(seed: int, participation: float, day: jax.Array | int, n: int) ->
 def travelled(choices: jax.Array) -> jax.Array:
     """[..., N] bool: who travelled on a day of joint `choices` [..., N] (ABSENT: stayed home)."""
     return choices != ABSENT
+
+
+@dataclass(frozen=True)
+class DepartureJitter:
+    """When each driver leaves each day: its scheduled second plus a uniform integer offset in
+    [-jitter_s, jitter_s], drawn from `seed` (the run's env seed) and the day index."""
+
+    seed: int  # the run's env seed
+    jitter_s: int  # > 0; 0 is URB's fixed departures (no DepartureJitter at all)
+
+    def departures(self, day: int, scheduled: np.ndarray) -> np.ndarray:
+        """[N] int64 seconds: day `day`'s departures of drivers scheduled at `scheduled` [N]."""
+        return jittered_departures(self.seed, self.jitter_s, day, scheduled)
+
+    def scenario_on(self, scenario: Scenario, day: int) -> Scenario:
+        """`scenario` with day `day`'s departures (the same agents, in the same order, and routes):
+        what SUMO runs that day."""
+        depart = self.departures(day, scenario.agent_depart)
+        return dataclasses.replace(scenario, agent_depart=depart)
+
+
+def jittered_departures(seed: int, jitter_s: int, day: int, scheduled: np.ndarray) -> np.ndarray:
+    """[N] int64, max(0, scheduled + randint(fold_in(fold_in(PRNGKey(seed), DEPART_STREAM), day),
+    [-jitter_s, jitter_s])): a pure function of its arguments, so every run with the same env seed
+    sees the same departures on a day of the same index."""
+    scheduled = np.asarray(scheduled, dtype=np.int64)
+    key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), DEPART_STREAM),
+                             jnp.asarray(day, jnp.uint32))
+    offset = np.asarray(jax.random.randint(key, scheduled.shape, -jitter_s, jitter_s + 1), dtype=np.int64)
+    return np.maximum(scheduled + offset, 0)

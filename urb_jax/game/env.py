@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
-from urb_jax.game.demand import ABSENT, DayDemand, travelled
+from urb_jax.game.demand import ABSENT, DayDemand, DepartureJitter, travelled
 from urb_jax.game.humans import HumanParams, HumanState, act, act_jit, aon_routes, end_day_jit, init_humans
 from urb_jax.game.observations import ObservationSpec, make_observation_spec, observe
 from urb_jax.game.rewards import (
@@ -83,6 +83,9 @@ class RoutingEnv:
     marginal_cost_beta: float = 0.0
     # Demand that varies day to day (game.demand): who travels on day `state.day`; None: everyone
     day_demand: DayDemand | None = None
+    # Departures that vary day to day (game.demand): SUMO's day `state.day` runs `sumo_scenario(day)`;
+    # the model's days keep the scheduled departures; None: as scheduled
+    depart_jitter: DepartureJitter | None = None
     # Competing fleets (game.mutation.split_fleets): [N] each agent's fleet, -1 for a human, and each
     # fleet's reward coefficients; None: one fleet, paid `reward_coefficients`
     cav_fleet: np.ndarray | None = None
@@ -170,6 +173,13 @@ class RoutingEnv:
         if self.day_demand is None:
             return joint
         return jnp.where(self.day_demand.present(state.day, self.n_agents), joint, ABSENT)
+
+    def sumo_scenario(self, day: int) -> Scenario:
+        """The Scenario SUMO runs on day index `day` (`state.day`, the index `day_demand` draws on):
+        the env's own, or with that day's departures (`depart_jitter`)."""
+        if self.depart_jitter is None:
+            return self.scenario
+        return self.depart_jitter.scenario_on(self.scenario, int(day))
 
     def active(self, state: EnvState) -> jnp.ndarray | None:
         """[C] bool: the CAVs that travel on day `state.day` (None: every CAV, fixed demand)."""

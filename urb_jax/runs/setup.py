@@ -145,9 +145,11 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
     """Refuse, before any SUMO day, a task whose URB metrics could not exist: no human day (t_pre),
     no test day (t_CAV, t_test, WR), or, for training, no CAV to train; a marginal credit
     without a calibrated surrogate to take its derivative (baselines, `--mode sumo`); demand varying
-    day to day where the run cannot honour it (`check_day_demand`, for `alg` or the `baseline` model)."""
+    day to day where the run cannot honour it (`check_day_demand`, for `alg` or the `baseline` model),
+    and departures varying day to day likewise (`check_departure_jitter`)."""
     check_day_demand(task, task_path, train=train, alg=canonical(alg) if alg else "", alg_config=alg_config,
                      baseline=baseline)
+    check_departure_jitter(task, task_path, train=train, baseline=baseline)
     check_fleets(task, task_path, n_agents, train=train)
     where = f"task config {task_path}"
     needs = task.surrogate_reward_keys
@@ -224,6 +226,19 @@ def check_day_demand(task: TaskConfig, task_path: Path, *, train: bool, alg: str
         raise ConfigError(f"{where} with key(s) {', '.join(task.surrogate_reward_keys)}: the surrogate's "
                           "marginal rewards count every driver, also those who stay home. Fix: set "
                           "reward_credit 'group' and marginal_cost_beta 0, or day_participation to 1.")
+
+
+def check_departure_jitter(task: TaskConfig, task_path: Path, *, train: bool, baseline: str = "") -> None:
+    """Refuse, before any day, a run that cannot honour `day_departure_jitter_s` > 0: the protocols
+    whose days are not wired to it (as for `day_participation`)."""
+    if task.departure_jitter(0) is None:
+        return
+    where = f"task config {task_path}: key 'day_departure_jitter_s' = {task.day_departure_jitter_s}"
+    if not train and baseline not in DAY_DEMAND_BASELINES:
+        what = f"the '{baseline}' baseline" if baseline else "a policy run outside `urb-jax train`"
+        raise ConfigError(f"{where} (departures varying day to day) is supported by `urb-jax train` and "
+                          f"the {' and '.join(DAY_DEMAND_BASELINES)} baselines only, not by {what}. Fix: use "
+                          f"--model {' or '.join(DAY_DEMAND_BASELINES)}, or set day_departure_jitter_s to 0.")
 
 
 def check_emission_source(setup: TrainSetup, executor: object | None) -> None:

@@ -91,7 +91,7 @@ def _phases(scenario: Scenario, task: TaskConfig, env: EnvConfig, policy: CavPol
     game = RoutingEnv(scenario, is_cav, human_params=hp,
                       reward_coefficients=task.reward_coefficients, observation_type=env.observations,
                       humans_adapt=task.should_humans_adapt, human_init=humans,
-                      day_demand=task.day_demand(env_seed))
+                      day_demand=task.day_demand(env_seed), depart_jitter=task.departure_jitter(env_seed))
     pstate = policy.init(jax.random.fold_in(jax.random.PRNGKey(env_seed), 0x2), game)
     # Phases 3-4: CAV training, then test with frozen policies.
     cav_days = _CavDays(game, policy, env_seed, executor, bar, sink, sumo)
@@ -147,7 +147,7 @@ class _CavDays:
         _, k_learn, k_cav, k_plearn = keys_today
         obs, cav_actions = _cav_choices(game, self.policy, pstate, k_cav, state)
         choices = np.asarray(game.joint_actions(state, jnp.asarray(cav_actions)))
-        res = one_day(self.executor, game.scenario, choices, self.env_seed, game.is_cav)
+        res = one_day(self.executor, game.sumo_scenario(int(state.day)), choices, self.env_seed, game.is_cav)
         self.bar.update(1, phase)
         times = np.asarray(res.travel_time, dtype=np.float64)
         keys = DayKeys(k_learn, k_act_tomorrow)

@@ -122,6 +122,7 @@ class Group:
     probe: Callable[[], float] | None  # a big learner's one-environment iteration, seconds (clock)
     memory_note: str  # the learner's memory against what is available (printed with the probe's estimate)
     seed_map: bool  # the learner's pieces go over the seeds by lax.map, not vmap (fns.maps_seeds)
+    sumo_scenario: Callable[[int], Scenario]  # what SUMO runs on a day index (RoutingEnv.sumo_scenario)
 
     @property
     def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
@@ -181,7 +182,7 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
                  task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
                  np.flatnonzero(is_cav), static, p0,
                  plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock, probe,
-                 memory_note, seed_map)
+                 memory_note, seed_map, env.sumo_scenario)
 
 
 def _plan(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, mode: str) -> RoundPlan:
@@ -281,7 +282,7 @@ def routing_env_kwargs(task: TaskConfig, env_cfg: EnvConfig, env_seed: int,
     kwargs = dict(human_params=task.human_params(), reward_coefficients=task.reward_coefficients,
                   observation_type=env_cfg.observations, humans_adapt=task.should_humans_adapt,
                   reward_credit=task.reward_credit, marginal_cost_beta=task.marginal_cost_beta,
-                  day_demand=task.day_demand(env_seed))
+                  day_demand=task.day_demand(env_seed), depart_jitter=task.departure_jitter(env_seed))
     if task.fleets:
         if is_cav is None:
             raise ValueError("a task with fleets needs the CAV draw (is_cav) to split its fleets")
@@ -515,13 +516,19 @@ class HybridTrainer:
         choices: jax.Array | np.ndarray  # the jitted act's, then numpy (np.asarray)
         obs, actions, choices = act(s.runner, k_act, real)
         choices = np.asarray(choices)[:, :b]  # [S, b, N]
-        results = executor.run_days(g.scn, choices.reshape(g.S * b, n), [g.env_seed] * (g.S * b),
-                                    is_cav=g.is_cav)
+        results = executor.run_days(self.day_scenario(real), choices.reshape(g.S * b, n),
+                                    [g.env_seed] * (g.S * b), is_cav=g.is_cav)
         times = np.zeros((g.S, r, n), np.float32)
         times[:, :b] = np.stack([res.travel_time for res in results]).reshape(g.S, b, n)
         times[:, b:] = times[:, :1]
         real, days = g.fns.sumo_step(k_step, real, obs, actions, jnp.asarray(times), s.params)
         return choices, results, times, real, days
+
+    def day_scenario(self, real: EnvState) -> Scenario:
+        """What SUMO runs on the real days of `real` [S] (the seeds keep step: one day index)."""
+        day = np.unique(np.asarray(real.day))
+        assert day.size == 1, f"the seeds' real days differ: {day}"
+        return self.g.sumo_scenario(int(day[0]))
 
     def refit(self, r: int) -> None:
         """Each seed refits its surrogate on `refit_days` of its SUMO days (a fixed-size sample drawn
@@ -549,14 +556,14 @@ class HybridTrainer:
         once with `reuse_identical_test_days`), then the AON reference day."""
         g = self.g
         executor = MemoExecutor(self.executor) if g.cfg.reuse_identical_test_days else self.executor
-        first_test_choices = None
+        first_test_choices, first_test_scn = None, self.day_scenario(self.state.real)
         for start_day in range(0, g.E, g.R):
             choices = self.test_days(start_day, executor)
             if start_day == 0:
                 first_test_choices = choices[0, 0]
         if first_test_choices is None:
             return {}
-        return aon_same_humans(g.scn, first_test_choices, g.is_cav, executor, g.env_seed)
+        return aon_same_humans(first_test_scn, first_test_choices, g.is_cav, executor, g.env_seed)
 
     def test_days(self, start_day: int, executor: DayExecutor) -> np.ndarray:
         """Test days start_day + 1 .. + b (b <= R) of every seed; returns their choices [S, b, N]."""

@@ -1,0 +1,97 @@
+"""Departures that vary day to day (task key day_departure_jitter_s): each day's departures are a
+reproducible draw around the scheduled ones; SUMO inserts each vehicle at its day's second and
+URB's travel time counts from it; the runs' post-mutation SUMO days get their day's departures and
+the human phase keeps the scheduled ones; runs that cannot honour the option refuse it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.fakeday import FakeExecutor
+from support.tiny_runs import train_iql
+
+from urb_jax.core.errors import ConfigError
+from urb_jax.game.config import TaskConfig
+from urb_jax.game.demand import DepartureJitter, jittered_departures
+from urb_jax.runs.setup import check_departure_jitter
+from urb_jax.sumo_bridge import day_key, run_day
+from urb_jax.sumo_bridge.keys import routes_key, scenario_key
+from urb_jax.sumo_bridge.scheduler import KEPT_SCENARIOS, KeptScenarios
+
+
+def test_a_days_departures_are_a_reproducible_bounded_draw():
+    sched = np.arange(0, 4000, 10)  # [400]
+    a = jittered_departures(42, 60, 7, sched)
+    np.testing.assert_array_equal(a, jittered_departures(42, 60, 7, sched))  # reproducible
+    off = a - sched
+    assert a.dtype == np.int64 and off[sched >= 60].min() >= -60 and off.max() <= 60
+    assert (a >= 0).all() and a[0] == max(0, off[0])  # never before second 0
+    assert len(np.unique(off)) > 60 and abs(off[sched >= 60].mean()) < 10  # spread over [-60, 60]
+    assert not np.array_equal(a, jittered_departures(42, 60, 8, sched))  # another day
+    assert not np.array_equal(a, jittered_departures(43, 60, 7, sched))  # another env seed
+    assert TaskConfig().departure_jitter(42) is None
+    assert TaskConfig(day_departure_jitter_s=60).departure_jitter(42) == DepartureJitter(42, 60)
+    with pytest.raises(ConfigError, match="day_departure_jitter_s"):
+        TaskConfig(day_departure_jitter_s=-1)
+
+
+def test_sumo_inserts_each_vehicle_at_its_days_second(grid_scenario):
+    """A lone vehicle: free flow either way, so its travel time is the same and it leaves the network
+    exactly its departure offset later."""
+    lone = grid_scenario.with_agents(np.array([5]))
+    jitter = DepartureJitter(seed=3, jitter_s=90)
+    sched = lone.agent_depart[0]
+    day = next(d for d in range(64) if jitter.departures(d, lone.agent_depart)[0] - sched >= 30)
+    moved = jitter.scenario_on(lone, day)
+    offset = int(moved.agent_depart[0] - lone.agent_depart[0])
+    choice = np.zeros(1, np.int64)
+    base, shifted = run_day(lone, choice, seed=42), run_day(moved, choice, seed=42)
+    assert shifted.leave_time[0] - base.leave_time[0] == pytest.approx(offset)
+    assert shifted.travel_time[0] == pytest.approx(base.travel_time[0])  # counted from its own departure
+    # the same network and routes (one route file), another day for the store
+    assert routes_key(moved) == routes_key(lone) and scenario_key(moved) != scenario_key(lone)
+    assert day_key(moved, choice, 42, None, None) != day_key(lone, choice, 42, None, None)
+
+
+def test_kept_scenarios_drop_the_oldest_as_both_sides_do():
+    kept: KeptScenarios[int] = KeptScenarios()
+    dropped = [kept.add(f"k{i}", i) for i in range(KEPT_SCENARIOS + 2)]
+    assert dropped[:KEPT_SCENARIOS] == [[]] * KEPT_SCENARIOS and dropped[-2:] == [["k0"], ["k1"]]
+    assert "k0" not in kept and "k2" in kept and kept[f"k{KEPT_SCENARIOS + 1}"] == KEPT_SCENARIOS + 1
+
+
+class _Recording(FakeExecutor):
+    """FakeExecutor that also remembers each batch's departures."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.departs: list[np.ndarray] = []
+
+    def run_days(self, scenario, choices, seeds, is_cav=None):
+        self.departs += [np.asarray(scenario.agent_depart).copy()] * len(choices)
+        return super().run_days(scenario, choices, seeds, is_cav)
+
+
+@pytest.mark.slow  # a whole tiny hybrid run
+def test_a_runs_days_after_mutation_leave_at_their_days_seconds(tiny_iql_confs, tmp_path, grid_scenario):
+    ex = _Recording()
+    train_iql(tiny_iql_confs, tmp_path, "jitter", executor=ex, env_seed=7,
+              overrides=("task.day_departure_jitter_s=120",))
+    sched = grid_scenario.agent_depart
+    moved = [d for d in ex.departs if not np.array_equal(d, sched)]
+    assert moved and len(moved) < len(ex.departs)  # the human phase and calibration keep the schedule
+    draws = [jittered_departures(7, 120, d, sched) for d in range(64)]
+    for d in moved:  # each is one day's draw of the env seed
+        assert any(np.array_equal(d, v) for v in draws)
+    assert len({d.tobytes() for d in moved}) > 1  # the days differ
+
+
+def test_runs_that_cannot_honour_jitter_refuse_it():
+    task, path = TaskConfig(day_departure_jitter_s=60), Path("task.json")
+    check_departure_jitter(task, path, train=True)
+    check_departure_jitter(task, path, train=False, baseline="aon")
+    with pytest.raises(ConfigError, match=r"task.json: key 'day_departure_jitter_s' = 60.*the 'human'"):
+        check_departure_jitter(task, path, train=False, baseline="human")
+    check_departure_jitter(TaskConfig(), path, train=False, baseline="human")  # off: nothing to refuse
