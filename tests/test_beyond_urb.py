@@ -48,6 +48,8 @@ def test_page_from_finished_runs(tmp_path, monkeypatch):
     page = out.read_text()
     assert "urb-jax suite varying_demand --networks-dir DIR --results-dir RESULTS" in page
     assert "urb-jax suite scenario1_emissions --networks-dir DIR --results-dir RESULTS" in page
+    jitter = page[page.index("## Departures that vary day to day"):page.index("## Equity")]
+    assert "urb-jax suite departure_jitter --networks-dir DIR" in jitter and "Not run yet." in jitter
     iql = next(line for line in page.splitlines() if line.startswith("| IQL\\*, p = 0.9 |"))
     assert "3.1000 ± 0.1000 (5)" in iql and "| 3/5 |" in iql  # below t_pre 3.19: 3.0, 3.1, 3.0
     assert "2.5 (1)" in next(line for line in page.splitlines() if line.startswith("| AON, p = 0.9 |"))
