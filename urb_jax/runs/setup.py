@@ -211,11 +211,7 @@ def check_day_demand(task: TaskConfig, task_path: Path, *, train: bool, alg: str
     if not task.varies_daily:
         return
     where = f"task config {task_path}: key 'day_participation' = {task.day_participation}"
-    if not train and baseline not in DAY_DEMAND_BASELINES:
-        what = f"the '{baseline}' baseline" if baseline else "a policy run outside `urb-jax train`"
-        raise ConfigError(f"{where} (demand varying day to day) is supported by `urb-jax train` and the "
-                          f"{' and '.join(DAY_DEMAND_BASELINES)} baselines only, not by {what}. Fix: use "
-                          f"--model {' or '.join(DAY_DEMAND_BASELINES)}, or set day_participation to 1.")
+    _refuse_unwired(where, "demand", train=train, baseline=baseline, off="day_participation to 1")
     frames = getattr(alg_config, "frames", "days")
     if train and (alg not in DAY_DEMAND_ALGORITHMS or frames != "days"):
         raise ConfigError(f"{where}: algorithm '{alg}' (frames {frames!r}) does not leave the CAVs who "
@@ -234,11 +230,17 @@ def check_departure_jitter(task: TaskConfig, task_path: Path, *, train: bool, ba
     if task.departure_jitter(0) is None:
         return
     where = f"task config {task_path}: key 'day_departure_jitter_s' = {task.day_departure_jitter_s}"
+    _refuse_unwired(where, "departures", train=train, baseline=baseline, off="day_departure_jitter_s to 0")
+
+
+def _refuse_unwired(where: str, varying: str, *, train: bool, baseline: str, off: str) -> None:
+    """Refuse a day-to-day variation (`varying`: what varies) outside `urb-jax train` and the baselines
+    whose days are wired to it; `off`: the setting that turns it off."""
     if not train and baseline not in DAY_DEMAND_BASELINES:
         what = f"the '{baseline}' baseline" if baseline else "a policy run outside `urb-jax train`"
-        raise ConfigError(f"{where} (departures varying day to day) is supported by `urb-jax train` and "
-                          f"the {' and '.join(DAY_DEMAND_BASELINES)} baselines only, not by {what}. Fix: use "
-                          f"--model {' or '.join(DAY_DEMAND_BASELINES)}, or set day_departure_jitter_s to 0.")
+        raise ConfigError(f"{where} ({varying} varying day to day) is supported by `urb-jax train` and the "
+                          f"{' and '.join(DAY_DEMAND_BASELINES)} baselines only, not by {what}. Fix: use "
+                          f"--model {' or '.join(DAY_DEMAND_BASELINES)}, or set {off}.")
 
 
 def check_emission_source(setup: TrainSetup, executor: object | None) -> None:
