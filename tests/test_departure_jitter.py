@@ -5,6 +5,7 @@ the human phase keeps the scheduled ones; runs that cannot honour the option ref
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -95,3 +96,18 @@ def test_runs_that_cannot_honour_jitter_refuse_it():
     with pytest.raises(ConfigError, match=r"task.json: key 'day_departure_jitter_s' = 60.*the 'human'"):
         check_departure_jitter(task, path, train=False, baseline="human")
     check_departure_jitter(TaskConfig(), path, train=False, baseline="human")  # off: nothing to refuse
+
+
+def test_tools_that_resimulate_a_runs_days_refuse_a_jittered_run(tmp_path):
+    from urb_jax.analysis.optimum import run_references
+    from urb_jax.core.errors import UrbJaxError
+    from urb_jax.reporting.day_export import export_day
+    from urb_jax.reporting.headroom import headroom
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "exp_config.json").write_text(json.dumps({"day_departure_jitter_s": 60, "env_seed": 7}))
+    for tool in (lambda: export_day(run, tmp_path / "day.rou.xml"), lambda: headroom(run),
+                 lambda: run_references(run)):
+        with pytest.raises(UrbJaxError, match=r"exp_config.json: key 'day_departure_jitter_s' = 60.*Fix"):
+            tool()

@@ -40,7 +40,7 @@ from urb_jax.core.ranges import FRACTION, STEPS, Range, above, between, check_ra
 from urb_jax.game.humans import aon_routes
 from urb_jax.game.rewards import behaviour_coefficients
 from urb_jax.reporting.day_export import recorded_day, run_config, scenario_of_run
-from urb_jax.reporting.records import read_records
+from urb_jax.reporting.records import check_scheduled_departures, read_records
 from urb_jax.sumo_bridge import ARRIVED, DayExecutor, DayResult, InProcessExecutor
 from urb_jax.surrogate import SumoSample, build_static, predict
 from urb_jax.surrogate.calibrate import REFIT, FitConfig, Params, fit_with_bias, uncalibrated
@@ -403,11 +403,8 @@ def run_references(folder: str | Path, networks_dir: str | None = None, cfg: Sea
                           f"{conf['day_participation']}: its days vary in who travels, and the optimum "
                           "and equilibrium references are defined for one fixed demand. Fix: ask for the "
                           "references of a run with day_participation 1.")
-    if int(conf.get("day_departure_jitter_s", 0)) > 0:
-        raise UrbJaxError(f"{folder / 'exp_config.json'}: key 'day_departure_jitter_s' = "
-                          f"{conf['day_departure_jitter_s']}: its days vary in when drivers leave, and the "
-                          "optimum and equilibrium references are defined for one fixed demand. Fix: ask for "
-                          "the references of a run with day_departure_jitter_s 0.")
+    check_scheduled_departures(folder, "the optimum and equilibrium references are defined for one "
+                                       "fixed demand")
     if conf.get("fleet_agents"):
         raise UrbJaxError(f"{folder / 'exp_config.json'}: the run has competing fleets (key 'fleets'); the "
                           "optimum and equilibrium references are defined for one fleet with one objective. "

@@ -23,7 +23,13 @@ from urb_jax.city.routes import RouteParams
 from urb_jax.city.scenario import Scenario, load_scenario
 from urb_jax.core.atomic import write_text
 from urb_jax.core.errors import UrbJaxError
-from urb_jax.reporting.records import check_run_network, networks_dir_of, read_records, run_config
+from urb_jax.reporting.records import (
+    check_run_network,
+    check_scheduled_departures,
+    networks_dir_of,
+    read_records,
+    run_config,
+)
 from urb_jax.sumo_bridge.tripinfo import insertion_order
 
 VEHICLE_ATTRS = ('departLane="first" departPos="base" departSpeed="0" '
@@ -83,6 +89,7 @@ def recorded_day(folder: str | os.PathLike, scn: Scenario, day: int | None = Non
 def export_day(folder: str | os.PathLike, out: str | os.PathLike, day: int | None = None,
                networks_dir: str | None = None) -> dict[str, Any]:
     """Write a recorded day's routes file atomically; returns what `urb-jax export-day` prints."""
+    check_scheduled_departures(folder, "the exported file would carry the scheduled ones")
     scn = scenario_of_run(folder, networks_dir)
     d, choices, is_cav, times = recorded_day(folder, scn, day)
     out = Path(out)

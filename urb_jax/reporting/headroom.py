@@ -29,7 +29,7 @@ from urb_jax.city.scenario import Scenario
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.game.humans import aon_routes
 from urb_jax.reporting.day_export import cli_travel_times, day_routes_xml, recorded_day, scenario_of_run
-from urb_jax.reporting.records import read_records, run_config
+from urb_jax.reporting.records import check_scheduled_departures, read_records, run_config
 from urb_jax.sumo_bridge import run_day
 
 PRE_DAYS = 50  # the human days before mutation that t_pre and the CAVs' own pre-mutation time average
@@ -55,6 +55,7 @@ class Headroom:
 def headroom(folder: str | os.PathLike, networks_dir: str | None = None, sumo_binaries: Sequence[str] = (),
              deviations: int = 0, workers: int = 2) -> Headroom:
     """The SUMO days around finished run `folder`'s test day (module docstring)."""
+    check_scheduled_departures(folder, "its AON and floor days would run the scheduled ones")
     cfg = run_config(folder)
     seed, H = int(cfg["env_seed"]), int(cfg["human_learning_episodes"])
     scn = scenario_of_run(folder, networks_dir)
