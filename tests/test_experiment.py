@@ -132,7 +132,7 @@ def test_every_shipped_task_and_env_config_loads():
                  "demand_half", "demand_double", "selfish_40_adapt_deterministic",
                  "altruistic_40_adapt_deterministic", "malicious_40_deterministic"}  # configs/suites
     # urb-jax's own tasks beyond URB's (docs/experiment.md)
-    extensions = {"varying_demand_40", "two_fleets_20_20"}
+    extensions = {"varying_demand_40", "departure_jitter_40", "two_fleets_20_20"}
     assert catalogue | extensions <= set(names)
     assert len(names) == 3 + 8 * 3 + 10 + len(catalogue) + len(extensions)
     for name in names:

@@ -33,6 +33,7 @@ from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.phase import enter_phase
 from urb_jax.core.progress import Progress
 from urb_jax.game.config import EnvConfig, TaskConfig
+from urb_jax.game.demand import DepartureJitter
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
 from urb_jax.game.mutation import draw_cavs, split_fleets
@@ -122,7 +123,7 @@ class Group:
     probe: Callable[[], float] | None  # a big learner's one-environment iteration, seconds (clock)
     memory_note: str  # the learner's memory against what is available (printed with the probe's estimate)
     seed_map: bool  # the learner's pieces go over the seeds by lax.map, not vmap (fns.maps_seeds)
-    sumo_scenario: Callable[[int], Scenario]  # what SUMO runs on a day index (RoutingEnv.sumo_scenario)
+    depart_jitter: DepartureJitter | None  # departures varying day to day (RoutingEnv.depart_jitter)
 
     @property
     def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
@@ -182,7 +183,7 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
                  task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
                  np.flatnonzero(is_cav), static, p0,
                  plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock, probe,
-                 memory_note, seed_map, env.sumo_scenario)
+                 memory_note, seed_map, env.depart_jitter)
 
 
 def _plan(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, mode: str) -> RoundPlan:
@@ -516,19 +517,28 @@ class HybridTrainer:
         choices: jax.Array | np.ndarray  # the jitted act's, then numpy (np.asarray)
         obs, actions, choices = act(s.runner, k_act, real)
         choices = np.asarray(choices)[:, :b]  # [S, b, N]
-        results = executor.run_days(self.day_scenario(real), choices.reshape(g.S * b, n),
-                                    [g.env_seed] * (g.S * b), is_cav=g.is_cav)
+        results = self.run_on_days(executor, choices.reshape(g.S * b, n),
+                                   np.asarray(real.day).reshape(g.S, -1)[:, :b].reshape(-1))
         times = np.zeros((g.S, r, n), np.float32)
         times[:, :b] = np.stack([res.travel_time for res in results]).reshape(g.S, b, n)
         times[:, b:] = times[:, :1]
         real, days = g.fns.sumo_step(k_step, real, obs, actions, jnp.asarray(times), s.params)
         return choices, results, times, real, days
 
-    def day_scenario(self, real: EnvState) -> Scenario:
-        """What SUMO runs on the real days of `real` [S] (the seeds keep step: one day index)."""
-        day = np.unique(np.asarray(real.day))
-        assert day.size == 1, f"the seeds' real days differ: {day}"
-        return self.g.sumo_scenario(int(day[0]))
+    def run_on_days(self, executor: DayExecutor, choices: np.ndarray, days: np.ndarray) -> list[DayResult]:
+        """SUMO days of `choices` [B, N] in order, row i on day index `days[i]` (its real copy's
+        `state.day`): one batch, or, where departures vary day to day, one batch per day index."""
+        g = self.g
+        if g.depart_jitter is None:
+            return executor.run_days(g.scn, choices, [g.env_seed] * len(choices), is_cav=g.is_cav)
+        results: list[DayResult | None] = [None] * len(choices)
+        for day in np.unique(days):
+            rows = np.flatnonzero(days == day)
+            scn = g.depart_jitter.scenario_on(g.scn, int(day))
+            for i, res in zip(rows, executor.run_days(scn, choices[rows], [g.env_seed] * len(rows),
+                                                       is_cav=g.is_cav), strict=True):
+                results[i] = res
+        return [res for res in results if res is not None]
 
     def refit(self, r: int) -> None:
         """Each seed refits its surrogate on `refit_days` of its SUMO days (a fixed-size sample drawn
@@ -556,14 +566,15 @@ class HybridTrainer:
         once with `reuse_identical_test_days`), then the AON reference day."""
         g = self.g
         executor = MemoExecutor(self.executor) if g.cfg.reuse_identical_test_days else self.executor
-        first_test_choices, first_test_scn = None, self.day_scenario(self.state.real)
+        first_test_choices, first_day = None, int(np.asarray(self.state.real.day).reshape(-1)[0])
         for start_day in range(0, g.E, g.R):
             choices = self.test_days(start_day, executor)
             if start_day == 0:
                 first_test_choices = choices[0, 0]
         if first_test_choices is None:
             return {}
-        return aon_same_humans(first_test_scn, first_test_choices, g.is_cav, executor, g.env_seed)
+        scn = g.scn if g.depart_jitter is None else g.depart_jitter.scenario_on(g.scn, first_day)
+        return aon_same_humans(scn, first_test_choices, g.is_cav, executor, g.env_seed)
 
     def test_days(self, start_day: int, executor: DayExecutor) -> np.ndarray:
         """Test days start_day + 1 .. + b (b <= R) of every seed; returns their choices [S, b, N]."""
