@@ -1,5 +1,6 @@
 """benchmarks/beyond_urb.py: the generated page's tables from finished runs (hand-computed means,
-sample sds and intervals), the suites not run yet, and the section kept for competing fleets."""
+sample sds and intervals), the suites not run yet, and the competing fleets' drivers against
+themselves (hand-computed fleet means)."""
 
 from __future__ import annotations
 
@@ -60,3 +61,37 @@ def test_page_from_finished_runs(tmp_path, monkeypatch):
     assert "1.01 ± 0.01 (3)" in provins and "| 1.00 ± 0.00 (3)" in provins and "1.00 ± 1.00 (3)" in provins
     assert "### St. Arnoult\n\nNot run yet." in page
     assert "## Competing fleets" in page
+
+
+def _fleet_run(root, name, test_times: tuple[float, float], fleets: dict | None = None) -> None:
+    """A finished run of agents 0 (fleet `iql_star`), 1 (fleet `mappo`) and 2 (a human): 3.0, 3.3 and
+    4.0 min on human days 1-2, then a training day 3 and a test day 4 with agents 0 and 1 at
+    `test_times`."""
+    folder = root / name
+    folder.mkdir(parents=True)
+    config = {"status": "done", "human_days": 2, "training_days": 1, "fleet_agents": fleets}
+    (folder / "exp_config.json").write_text(json.dumps(config))
+    days = {1: (3.0, 3.3), 2: (3.0, 3.3), 3: (5.0, 5.0), 4: test_times}
+    rows = [{"day": d, "agent": a, "travel_time": t} for d, (t0, t1) in days.items()
+            for a, t in ((0, t0), (1, t1), (2, 4.0))]
+    pd.DataFrame(rows).to_parquet(folder / "records.parquet")
+
+
+def test_fleets_section_compares_each_fleets_drivers_with_themselves(tmp_path):
+    fleets = {"iql_star": [0], "mappo": [1]}
+    for s in range(3):
+        _fleet_run(tmp_path, f"fleets_saint_arnoult_iql_star_mappo_s{s}", (2.9 + 0.1 * s, 3.2), fleets)
+        _fleet_run(tmp_path, f"fleets_saint_arnoult_one_fleet_iql_star_s{s}", (2.8, 3.4))
+        _fleet_run(tmp_path, f"fleets_saint_arnoult_one_fleet_mappo_s{s}", (3.1, 3.2 + 0.1 * s))
+    _fleet_run(tmp_path, "fleets_saint_arnoult_aon", (2.95, 3.25))
+    lines = bu.fleets(tmp_path)
+    iql = next(line for line in lines if line.startswith("| fleet `iql_star` |"))
+    # n, before the CAVs (its drivers' human days), AON, alone with IQL*, alone with MAPPO, competing
+    assert iql.startswith("| fleet `iql_star` | 1 | 3.0000 (1) | 2.9500 (1) | 2.8000 ± 0.0000 (3)")
+    assert "| 3.1000 ± 0.0000 (3) [3.1000, 3.1000] | 3.0000 ± 0.1000 (3)" in iql
+    mappo = next(line for line in lines if line.startswith("| fleet `mappo` |"))
+    assert "| 3.3000 (1) | 3.2500 (1) | 3.4000 ± 0.0000 (3)" in mappo and "3.3000 ± 0.1000 (3)" in mappo
+    # competing − alone with its own algorithm: IQL* 3.0 − 2.8; MAPPO 3.2 − 3.3
+    diffs = [line for line in lines if line.startswith("| `")]
+    assert diffs[0].startswith("| `iql_star` | +0.2000 [") and diffs[1].startswith("| `mappo` | -0.1000 [")
+    assert bu.fleets(tmp_path / "none")[-2] == "Not run yet."
