@@ -538,7 +538,9 @@ class HybridTrainer:
             for i, res in zip(rows, executor.run_days(scn, choices[rows], [g.env_seed] * len(rows),
                                                        is_cav=g.is_cav), strict=True):
                 results[i] = res
-        return [res for res in results if res is not None]
+        done = [res for res in results if res is not None]
+        assert len(done) == len(results)  # every row's day index is one of the batches'
+        return done
 
     def refit(self, r: int) -> None:
         """Each seed refits its surrogate on `refit_days` of its SUMO days (a fixed-size sample drawn
