@@ -25,6 +25,7 @@ from urb_jax.sumo_bridge.config import SumoConfig
 
 # Hashing reads the network file (megabytes on real networks): once per Scenario object.
 _SCENARIO_KEYS: weakref.WeakKeyDictionary[Scenario, str] = weakref.WeakKeyDictionary()
+_ROUTES_KEYS: weakref.WeakKeyDictionary[Scenario, str] = weakref.WeakKeyDictionary()
 
 
 def scenario_key(scenario: Scenario) -> str:
@@ -46,6 +47,14 @@ def scenario_key(scenario: Scenario) -> str:
 def routes_key(scenario: Scenario) -> str:
     """Content hash of what a Scenario's route file and network hold: the network file's bytes, the
     edge ids and the route table (not the agents: a day's departures do not change it)."""
+    key = _ROUTES_KEYS.get(scenario)
+    if key is None:
+        key = _routes_digest(scenario)
+        _ROUTES_KEYS[scenario] = key
+    return key
+
+
+def _routes_digest(scenario: Scenario) -> str:
     h = hashlib.sha256(_file_digest(str(scenario.net_file), *_stat(scenario.net_file)).encode())
     h.update("\n".join(scenario.edge_ids).encode())
     for arr in (scenario.od_routes, scenario.od_route_len):

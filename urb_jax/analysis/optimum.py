@@ -403,7 +403,7 @@ def run_references(folder: str | Path, networks_dir: str | None = None, cfg: Sea
                           f"{conf['day_participation']}: its days vary in who travels, and the optimum "
                           "and equilibrium references are defined for one fixed demand. Fix: ask for the "
                           "references of a run with day_participation 1.")
-    check_scheduled_departures(folder, "the optimum and equilibrium references are defined for one "
+    check_scheduled_departures(folder, conf, "the optimum and equilibrium references are defined for one "
                                        "fixed demand")
     if conf.get("fleet_agents"):
         raise UrbJaxError(f"{folder / 'exp_config.json'}: the run has competing fleets (key 'fleets'); the "

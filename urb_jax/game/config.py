@@ -203,10 +203,16 @@ class TaskConfig:
         """Who travels each day after mutation under env seed `env_seed` (None: everyone, URB)."""
         return DayDemand(int(env_seed), self.day_participation) if self.varies_daily else None
 
+    @property
+    def jitters_departures(self) -> bool:
+        """Departures vary day to day (`day_departure_jitter_s` > 0)."""
+        return self.day_departure_jitter_s > 0
+
     def departure_jitter(self, env_seed: int) -> DepartureJitter | None:
         """When drivers leave each day after mutation under env seed `env_seed` (None: as scheduled, URB)."""
-        jitter = int(self.day_departure_jitter_s)
-        return DepartureJitter(int(env_seed), jitter) if jitter > 0 else None
+        if not self.jitters_departures:
+            return None
+        return DepartureJitter(int(env_seed), int(self.day_departure_jitter_s))
 
     @property
     def reward_coefficients(self) -> tuple[float, float, float, float]:

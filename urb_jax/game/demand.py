@@ -36,7 +36,7 @@ DEMAND_STREAM = 0xDA7D  # fold_in tag of the participation draws: no other strea
 DEPART_STREAM = 0xDE9A  # fold_in tag of the departure-jitter draws
 
 __all__ = ["ABSENT", "DEMAND_STREAM", "DEPART_STREAM", "DayDemand", "DepartureJitter", "jittered_departures",
-           "present_on", "travelled"]
+           "present_on", "scenario_on_day", "travelled"]
 
 
 @dataclass(frozen=True)
@@ -92,3 +92,8 @@ def jittered_departures(seed: int, jitter_s: int, day: int, scheduled: np.ndarra
                              jnp.asarray(day, jnp.uint32))
     offset = np.asarray(jax.random.randint(key, scheduled.shape, -jitter_s, jitter_s + 1), dtype=np.int64)
     return np.maximum(scheduled + offset, 0)
+
+
+def scenario_on_day(scenario: Scenario, jitter: DepartureJitter | None, day: int) -> Scenario:
+    """What SUMO runs on day index `day`: `scenario` itself, or with that day's departures."""
+    return scenario if jitter is None else jitter.scenario_on(scenario, day)

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
-from urb_jax.game.demand import ABSENT, DayDemand, DepartureJitter, travelled
+from urb_jax.game.demand import ABSENT, DayDemand, DepartureJitter, scenario_on_day, travelled
 from urb_jax.game.humans import HumanParams, HumanState, act, act_jit, aon_routes, end_day_jit, init_humans
 from urb_jax.game.observations import ObservationSpec, make_observation_spec, observe
 from urb_jax.game.rewards import (
@@ -177,9 +177,7 @@ class RoutingEnv:
     def sumo_scenario(self, day: int) -> Scenario:
         """The Scenario SUMO runs on day index `day` (`state.day`, the index `day_demand` draws on):
         the env's own, or with that day's departures (`depart_jitter`)."""
-        if self.depart_jitter is None:
-            return self.scenario
-        return self.depart_jitter.scenario_on(self.scenario, int(day))
+        return scenario_on_day(self.scenario, self.depart_jitter, int(day))
 
     def active(self, state: EnvState) -> jnp.ndarray | None:
         """[C] bool: the CAVs that travel on day `state.day` (None: every CAV, fixed demand)."""

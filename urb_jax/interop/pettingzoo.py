@@ -68,7 +68,7 @@ class _SumoDays:
             raise ConfigError(f"task key 'day_participation' = {self.task.day_participation}: the PettingZoo "
                               "envs run URB's fixed demand (every driver every day). Fix: set "
                               "day_participation to 1, or train with `urb-jax train`.")
-        if self.task.departure_jitter(0) is not None:
+        if self.task.jitters_departures:
             raise ConfigError(f"task key 'day_departure_jitter_s' = {self.task.day_departure_jitter_s}: the "
                               "PettingZoo envs run URB's scheduled departures. Fix: set "
                               "day_departure_jitter_s to 0, or train with `urb-jax train`.")

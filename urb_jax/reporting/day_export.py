@@ -89,12 +89,13 @@ def recorded_day(folder: str | os.PathLike, scn: Scenario, day: int | None = Non
 def export_day(folder: str | os.PathLike, out: str | os.PathLike, day: int | None = None,
                networks_dir: str | None = None) -> dict[str, Any]:
     """Write a recorded day's routes file atomically; returns what `urb-jax export-day` prints."""
-    check_scheduled_departures(folder, "the exported file would carry the scheduled ones")
+    config = run_config(folder)
+    check_scheduled_departures(folder, config, "the exported file would carry the scheduled ones")
     scn = scenario_of_run(folder, networks_dir)
     d, choices, is_cav, times = recorded_day(folder, scn, day)
     out = Path(out)
     write_text(out, day_routes_xml(scn, choices, is_cav))
-    seed = int(run_config(folder)["env_seed"])
+    seed = int(config["env_seed"])
     return {"day": d, "file": str(out), "net_file": scn.net_file, "vehicles": scn.n_agents,
             "cavs": int(is_cav.sum()), "mean_travel_time_min": round(float(times.mean()), 4),
             "replay": f"sumo -n {scn.net_file} -r {out} --seed {seed} --time-to-teleport -1"}

@@ -55,8 +55,8 @@ class Headroom:
 def headroom(folder: str | os.PathLike, networks_dir: str | None = None, sumo_binaries: Sequence[str] = (),
              deviations: int = 0, workers: int = 2) -> Headroom:
     """The SUMO days around finished run `folder`'s test day (module docstring)."""
-    check_scheduled_departures(folder, "its AON and floor days would run the scheduled ones")
     cfg = run_config(folder)
+    check_scheduled_departures(folder, cfg, "its AON and floor days would run the scheduled ones")
     seed, H = int(cfg["env_seed"]), int(cfg["human_learning_episodes"])
     scn = scenario_of_run(folder, networks_dir)
     day, choices, is_cav, recorded = recorded_day(folder, scn)

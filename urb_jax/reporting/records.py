@@ -361,10 +361,10 @@ def run_metrics(folder: str | os.PathLike) -> dict[str, float]:
     return comparable_metrics(metrics) if is_hybrid(cfg) else metrics
 
 
-def check_scheduled_departures(folder: str | os.PathLike, needs: str) -> None:
+def check_scheduled_departures(folder: str | os.PathLike, config: dict[str, Any], needs: str) -> None:
     """Refuse a tool that re-simulates a run's days (`needs`: why it needs the schedule) for a run whose
-    SUMO days moved the departures (task key day_departure_jitter_s)."""
-    jitter = int(run_config(Path(folder)).get("day_departure_jitter_s", 0))
+    SUMO days moved the departures (task key day_departure_jitter_s in its exp_config.json `config`)."""
+    jitter = int(config.get("day_departure_jitter_s", 0))
     if jitter > 0:
         raise UrbJaxError(f"{Path(folder) / 'exp_config.json'}: key 'day_departure_jitter_s' = {jitter}: the "
                           f"run's SUMO days moved every departure, and {needs}. Fix: use a run with "

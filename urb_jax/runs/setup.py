@@ -227,7 +227,7 @@ def check_day_demand(task: TaskConfig, task_path: Path, *, train: bool, alg: str
 def check_departure_jitter(task: TaskConfig, task_path: Path, *, train: bool, baseline: str = "") -> None:
     """Refuse, before any day, a run that cannot honour `day_departure_jitter_s` > 0: the protocols
     whose days are not wired to it (as for `day_participation`)."""
-    if task.departure_jitter(0) is None:
+    if not task.jitters_departures:
         return
     where = f"task config {task_path}: key 'day_departure_jitter_s' = {task.day_departure_jitter_s}"
     _refuse_unwired(where, "departures", train=train, baseline=baseline, off="day_departure_jitter_s to 0")

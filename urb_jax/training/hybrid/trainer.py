@@ -33,7 +33,7 @@ from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.phase import enter_phase
 from urb_jax.core.progress import Progress
 from urb_jax.game.config import EnvConfig, TaskConfig
-from urb_jax.game.demand import DepartureJitter
+from urb_jax.game.demand import DepartureJitter, scenario_on_day
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
 from urb_jax.game.mutation import draw_cavs, split_fleets
@@ -534,7 +534,7 @@ class HybridTrainer:
         results: list[DayResult | None] = [None] * len(choices)
         for day in np.unique(days):
             rows = np.flatnonzero(days == day)
-            scn = g.depart_jitter.scenario_on(g.scn, int(day))
+            scn = scenario_on_day(g.scn, g.depart_jitter, int(day))
             for i, res in zip(rows, executor.run_days(scn, choices[rows], [g.env_seed] * len(rows),
                                                        is_cav=g.is_cav), strict=True):
                 results[i] = res
@@ -575,7 +575,7 @@ class HybridTrainer:
                 first_test_choices = choices[0, 0]
         if first_test_choices is None:
             return {}
-        scn = g.scn if g.depart_jitter is None else g.depart_jitter.scenario_on(g.scn, first_day)
+        scn = scenario_on_day(g.scn, g.depart_jitter, first_day)
         return aon_same_humans(scn, first_test_choices, g.is_cav, executor, g.env_seed)
 
     def test_days(self, start_day: int, executor: DayExecutor) -> np.ndarray:
