@@ -4,8 +4,9 @@
 
 Prints, per network and batch size B: days/s of `surrogate.predict` (int choices), of its
 probability input with a gradient (B=64 row), of a plain jitted scatter-add BPR day (vmap, chosen
-routes, 5-min bins; the reference design), and the speed-up over one SUMO day (sumo_bridge.run_day,
-median of 3, same joint action).
+routes, 5-min bins; the reference design), the speed-up over one SUMO day (sumo_bridge.run_day,
+median of 3, same joint action), and days/s when departures move day to day (`--shift-s`): each of
+the B days with its own shifts, as the training envs' days are (vmap of the one-day model).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ import numpy as np
 
 from urb_jax.city.scenario import load_scenario
 from urb_jax.surrogate.model import SurrogateConfig, build_static, init_params, predict, predict_jit
+
+MOVING_BATCHES = (64, 1024)
 
 
 def rate(fn, arg, batch: int, seconds: float) -> float:
@@ -78,6 +81,8 @@ def main() -> None:
                     help="skip the SUMO day (a machine without SUMO, e.g. a GPU box); its columns read n/a")
     ap.add_argument("--drop-unroutable", action="store_true",
                     help="leave out agents without a route where there are any (mantes_la_jolie)")
+    ap.add_argument("--shift-s", type=int, default=300,
+                    help="departures moving by up to this many seconds: the moving-departures table")
     args = ap.parse_args()
     print(f"JAX {jax.__version__} on {jax.devices()[0].platform} ({jax.devices()[0].device_kind}), "
           f"{os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.1f}")
@@ -85,6 +90,8 @@ def main() -> None:
               "SUMO s/day | speed-up vs SUMO |")
     rows = [header, "|---|---|---|---|---|---|---|---|"]
     grad_rows = ["| network | B | prob. input + grad days/s |", "|---|---|---|"]
+    moving_rows = [f"| network | B | scheduled days/s | departures moving ±{args.shift_s} s, days/s "
+                   "| ratio |", "|---|---|---|---|---|"]
     for net in args.nets.split(","):
         scn = load_scenario(net, networks_dir=args.networks_dir, drop_unroutable=args.drop_unroutable)
         static = build_static(scn, SurrogateConfig())
@@ -103,7 +110,24 @@ def main() -> None:
         logits = jnp.asarray(rng.normal(size=(64, scn.n_agents, scn.k)).astype(np.float32))
         grad = jax.jit(jax.grad(lambda lg, p=params, s=static: predict(p, s, jax.nn.softmax(lg, -1)).sum()))
         grad_rows.append(f"| {net} | 64 | {rate(grad, logits, 64, args.seconds):,.0f} |")
-    print("\n".join(["", *rows, "", *grad_rows]))
+        moving_rows += moving(scn, params, rng, args)
+    print("\n".join(["", *rows, "", *grad_rows, "", *moving_rows]))
+
+
+def moving(scn, params, rng: np.random.Generator, args: argparse.Namespace) -> list[str]:
+    """Rows of the moving-departures table: B days each with its own shifts against B scheduled days."""
+    static = build_static(scn, SurrogateConfig(), max_shift_s=float(args.shift_s))
+    per_day = jax.jit(jax.vmap(lambda c, s: predict(params, static, c, s)))
+    out = []
+    for b in MOVING_BATCHES:
+        ch = jnp.asarray(rng.integers(0, scn.k, (b, scn.n_agents)), jnp.int32)
+        off = rng.integers(-args.shift_s, args.shift_s + 1, (b, scn.n_agents))
+        shift = jnp.asarray(np.maximum(scn.agent_depart + off, 0) - scn.agent_depart, jnp.float32)
+        r_s = rate(lambda c: predict_jit(params, static, c), ch, b, args.seconds)
+        r_m = rate(lambda c: per_day(c, shift), ch, b, args.seconds)  # noqa: B023
+        out.append(f"| {scn.name} | {b} | {r_s:,.0f} | {r_m:,.0f} | {r_m / r_s:.2f}x |")
+        print(out[-1], flush=True)
+    return out
 
 
 if __name__ == "__main__":

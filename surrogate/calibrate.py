@@ -24,8 +24,8 @@ from urb_jax.surrogate.model import (
     SurrogateConfig,
     build_static,
     init_params,
-    predict,
     predict_bucketed,
+    predict_days,
 )
 from urb_jax.surrogate.queue import init_queue_params
 
@@ -45,20 +45,31 @@ class SumoSample:
     choices: np.ndarray
     travel_time: np.ndarray  # minutes
     arrived: np.ndarray  # bool; removed (stuck) vehicles carry a penalty, not a travel time
+    # [D, N] float32 seconds each driver left off its schedule that day (departures that move day
+    # to day); None: every day as scheduled (zeros)
+    shift: np.ndarray | None = None
 
     @staticmethod
-    def from_days(choices: np.ndarray, days: Sequence[DayResult]) -> SumoSample:
+    def from_days(choices: np.ndarray, days: Sequence[DayResult], shift: np.ndarray | None = None
+                  ) -> SumoSample:
         return SumoSample(
             choices=np.asarray(choices, dtype=np.int32),
             travel_time=np.stack([d.travel_time for d in days]).astype(np.float32),
             arrived=np.stack([d.status == ARRIVED for d in days]),
+            shift=None if shift is None else np.asarray(shift, dtype=np.float32),
         )
 
+    def shifts(self) -> np.ndarray:
+        """[D, N] the days' departure shifts (zeros for scheduled days)."""
+        return self.shift if self.shift is not None else np.zeros(self.choices.shape, np.float32)
+
     def __add__(self, other: SumoSample) -> SumoSample:
+        moved = self.shift is not None or other.shift is not None
         return SumoSample(
             np.concatenate([self.choices, other.choices]),
             np.concatenate([self.travel_time, other.travel_time]),
             np.concatenate([self.arrived, other.arrived]),
+            np.concatenate([self.shifts(), other.shifts()]) if moved else None,
         )
 
     def __len__(self) -> int:
@@ -66,7 +77,8 @@ class SumoSample:
 
     def days(self, rows: Sequence[int] | np.ndarray) -> SumoSample:
         """The sample of these days only."""
-        return SumoSample(self.choices[rows], self.travel_time[rows], self.arrived[rows])
+        return SumoSample(self.choices[rows], self.travel_time[rows], self.arrived[rows],
+                          None if self.shift is None else self.shift[rows])
 
 
 @dataclass(frozen=True)
@@ -90,7 +102,7 @@ EDGE_KEYS = ("log_speed_e", "log_a_e", "log_junc_e")
 
 def loss_fn(params: Params, static: Static, sample: dict[str, jax.Array], anchor_params: Params,
             fit: FitConfig) -> jax.Array:
-    pred = predict(params, static, sample["choices"])
+    pred = predict_days(params, static, sample["choices"], sample.get("shift"))
     y, m = sample["travel_time"], sample["arrived"]
     rel = jnp.where(m, (pred - y) / y, 0.0)
     agent_term = (rel**2).sum() / jnp.maximum(m.sum(), 1)
@@ -113,6 +125,8 @@ def fit_params(params: Params, static: Static, sample: SumoSample, fit: FitConfi
         "travel_time": jnp.asarray(np.where(sample.arrived, sample.travel_time, 1.0), jnp.float32),
         "arrived": jnp.asarray(sample.arrived),
     }
+    if sample.shift is not None:
+        data["shift"] = jnp.asarray(sample.shift, jnp.float32)
     anchor = jax.tree.map(jnp.asarray, params)
     p, _ = _run_fit(anchor, static, data, fit)
     return p
@@ -146,7 +160,7 @@ def route_bias(params: Params, static: Static, sample: SumoSample, prior_days: f
     choosing routes whose SUMO time it underestimates. Correcting exactly the (agent, route)
     pairs SUMO has measured makes those routes look as they drove, while unseen routes keep the
     model's estimate (so the policy still tries them, and the next SUMO days measure them)."""
-    pred = predict_bucketed(without_bias(params), static, sample.choices)  # [D, N], D grows each round
+    pred = predict_bucketed(without_bias(params), static, sample.choices, sample.shift)  # [D, N], D grows
     res = np.where(sample.arrived, sample.travel_time - pred, 0.0)
     n, k = static.n, static.k
     sums = np.zeros((n, k))

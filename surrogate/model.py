@@ -24,12 +24,14 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, replace
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
+from urb_jax.surrogate.departures import DepartIndex, build_depart_index, day_cells
 from urb_jax.surrogate.queue import QueueIndex, build_queue_index, init_queue_params, queue_route_delays
 
 # Junction classes for the junction/signal delay term (the edge's downstream junction).
@@ -58,7 +60,7 @@ MODELS = ("bpr", "queue")
     jax.tree_util.register_dataclass,
     data_fields=[
         "flow_row", "flow_cell", "flow_w", "time_row", "time_cell", "time_w",
-        "cell_edge", "cell_cap", "edge_t0", "edge_class", "edge_jclass", "origin_load", "queue",
+        "cell_edge", "cell_cap", "edge_t0", "edge_class", "edge_jclass", "origin_load", "queue", "departs",
     ],
     meta_fields=["n", "k", "n_cells", "n_edges", "n_classes", "power", "chunk"],
 )
@@ -86,6 +88,50 @@ class Static:
     power: int
     chunk: int
     queue: QueueIndex | None = None  # the queue model's entries (None: the BPR model)
+    departs: DepartIndex | None = None  # the entries again for days whose departures move (None: never)
+
+
+class Cells(NamedTuple):
+    """The entries a day's sums run over: (row, cell, weight) in cell order for the flows and in
+    row order for the times, over `n_cells` cells (`sorted_flow`: flow_cell is sorted)."""
+
+    flow_row: jax.Array
+    flow_cell: jax.Array
+    flow_w: jax.Array
+    time_row: jax.Array
+    time_cell: jax.Array
+    time_w: jax.Array
+    n_cells: int
+    sorted_flow: bool
+
+
+class DayLayout(NamedTuple):
+    """A day's cells with each cell's edge [C] and capacity [C], and each agent's insertion load [N]."""
+
+    cells: Cells
+    cell_edge: jax.Array
+    cell_cap: jax.Array
+    origin_load: jax.Array
+
+
+def day_layout(static: Static, shift: jax.Array | None) -> DayLayout:
+    """The scheduled day's precomputed layout (`shift` None), or the layout of a day whose drivers
+    leave `shift` [N] seconds off their schedule (surrogate/departures.py)."""
+    if shift is None:
+        cells = Cells(static.flow_row, static.flow_cell, static.flow_w, static.time_row, static.time_cell,
+                      static.time_w, static.n_cells, True)
+        return DayLayout(cells, static.cell_edge, static.cell_cap, static.origin_load)
+    index = static.departs
+    if index is None:
+        raise ValueError("this surrogate was built for scheduled departures only: build it with "
+                         "build_static(..., max_shift_s=J) to predict days whose departures move")
+    if static.queue is not None:
+        raise ValueError("the queue model places its entries from the scheduled departures: days whose "
+                         "departures move need surrogate_model 'bpr'")
+    row, cell, weight, load = day_cells(index, shift)
+    cell_edge = jnp.arange(index.n_cells, dtype=jnp.int32) // index.n_bins
+    return DayLayout(Cells(row, cell, weight, row, cell, weight, index.n_cells, False), cell_edge,
+                     index.edge_cap[cell_edge], load)
 
 
 def junction_types(net_file: str, edge_ids: tuple[str, ...]) -> list[str]:
@@ -131,8 +177,11 @@ def _origin_load(scn: Scenario, window: float) -> np.ndarray:
     return load
 
 
-def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig()) -> Static:
-    """Precompute the (agent, route, edge, bin) entries, the compact cells and the edge features."""
+def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
+                 max_shift_s: float | None = None) -> Static:
+    """Precompute the (agent, route, edge, bin) entries, the compact cells and the edge features;
+    `max_shift_s` set: also the entries of days whose drivers leave up to that many seconds off
+    their schedule (`predict(..., shift=)`)."""
     if config.model not in MODELS:
         raise ValueError(f"surrogate model {config.model!r} is not one of {', '.join(MODELS)}")
     routes = scn.routes  # [N, K, L]
@@ -176,6 +225,8 @@ def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig()) -> 
         power=config.bpr_power, chunk=config.chunk,
         queue=(build_queue_index(scn, config.entry_scale, config.bin_s, config.queue_passes,
                                  config.queue_spill, jcls) if config.model == "queue" else None),
+        departs=(None if max_shift_s is None else build_depart_index(
+            scn, config.entry_scale, config.bin_s, config.interpolate, config.origin_window_s, max_shift_s)),
     )
 
 
@@ -210,30 +261,31 @@ def edge_terms(params: dict[str, jax.Array], static: Static) -> tuple[jax.Array,
     return static.edge_t0 * speed + junc, a
 
 
-def _route_times(X: jax.Array, base_c: jax.Array, a_c: jax.Array, static: Static) -> jax.Array:
+def _route_times(X: jax.Array, base_c: jax.Array, a_c: jax.Array, cap_c: jax.Array, cells: Cells,
+                 static: Static) -> jax.Array:
     """[N*K, b] route weights -> [N*K, b] route times (s), both batch-last."""
     F = jax.ops.segment_sum(
-        static.flow_w[:, None] * X[static.flow_row], static.flow_cell, static.n_cells,
-        indices_are_sorted=True,
+        cells.flow_w[:, None] * X[cells.flow_row], cells.flow_cell, cells.n_cells,
+        indices_are_sorted=cells.sorted_flow,
     )
-    r = F / static.cell_cap[:, None]
+    r = F / cap_c[:, None]
     tau = base_c[:, None] * (1.0 + a_c[:, None] * jax.lax.integer_pow(r, static.power))
     return jax.ops.segment_sum(
-        static.time_w[:, None] * tau[static.time_cell], static.time_row, static.n * static.k,
+        cells.time_w[:, None] * tau[cells.time_cell], cells.time_row, static.n * static.k,
         indices_are_sorted=True,
     )
 
 
-def _day_chunk(chunk_in: jax.Array, base_c, a_c, static: Static) -> jax.Array:
+def _day_chunk(chunk_in: jax.Array, base_c, a_c, cap_c, cells: Cells, static: Static) -> jax.Array:
     """One batch chunk, batch-last: int [N, b] choices or [N, K, b] probabilities -> [N, b] seconds."""
     N, K = static.n, static.k
     if chunk_in.ndim == 2:  # route indices
         X = (chunk_in[:, None, :] == jnp.arange(K, dtype=chunk_in.dtype)[None, :, None])
         X = X.astype(jnp.float32).reshape(N * K, -1)
-        R = _route_times(X, base_c, a_c, static).reshape(N, K, -1)
+        R = _route_times(X, base_c, a_c, cap_c, cells, static).reshape(N, K, -1)
         return jnp.take_along_axis(R, chunk_in[:, None, :], axis=1)[:, 0]
     X = chunk_in.reshape(N * K, -1)
-    R = _route_times(X, base_c, a_c, static).reshape(N, K, -1)
+    R = _route_times(X, base_c, a_c, cap_c, cells, static).reshape(N, K, -1)
     return (chunk_in * R).sum(axis=1)
 
 
@@ -246,7 +298,8 @@ def _queue_day_chunk(chunk_in: jax.Array, base_c, a_c, g: jax.Array, params, sta
         X = X.astype(jnp.float32).reshape(N * K, -1)
     else:
         X = chunk_in.reshape(N * K, -1)
-    R = _route_times(X, base_c, a_c, static) * jnp.repeat(g, K)[:, None]
+    cells = day_layout(static, None).cells
+    R = _route_times(X, base_c, a_c, static.cell_cap, cells, static) * jnp.repeat(g, K)[:, None]
     R = (R + queue_route_delays(params, static.queue, X)).reshape(N, K, -1)
     if chunk_in.ndim == 2:
         return jnp.take_along_axis(R, chunk_in[:, None, :], axis=1)[:, 0]
@@ -257,7 +310,8 @@ def route_times_seconds(params, static: Static, probs: jax.Array) -> jax.Array:
     """[B, N, K] probabilities -> [B, N, K] time of every route given the flows (s, no insertion)."""
     base, a = edge_terms(params, static)
     X = jnp.moveaxis(probs, 0, -1).reshape(static.n * static.k, -1)
-    R = _route_times(X, base[static.cell_edge], a[static.cell_edge], static)
+    lay = day_layout(static, None)
+    R = _route_times(X, base[lay.cell_edge], a[lay.cell_edge], lay.cell_cap, lay.cells, static)
     if static.queue is not None:
         R = R * jnp.exp(params["log_agent"])[:, None] + queue_route_delays(params, static.queue, X)
         return jnp.moveaxis(R.reshape(static.n, static.k, -1), -1, 0)
@@ -265,11 +319,14 @@ def route_times_seconds(params, static: Static, probs: jax.Array) -> jax.Array:
     return jnp.moveaxis(R, -1, 0)
 
 
-def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) -> jax.Array:
+def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array,
+            shift: jax.Array | None = None) -> jax.Array:
     """Travel times in minutes, [B, N], for choices [B, N] (route index) or [B, N, K] (probabilities).
 
     A leading batch axis is optional ([N] or [N, K] give [N]). Probabilities give each agent's
-    expected time under flows weighted by everyone's probabilities (differentiable).
+    expected time under flows weighted by everyone's probabilities (differentiable). `shift` [N]:
+    the days' drivers leave that many seconds off their schedule (the same for the whole batch;
+    needs `build_static(..., max_shift_s=)`).
     """
     is_prob = jnp.issubdtype(choices.dtype, jnp.floating)
     single = choices.ndim == (2 if is_prob else 1)
@@ -278,7 +335,8 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
     given = choices
     B = choices.shape[0]
     base, a = edge_terms(params, static)
-    base_c, a_c = base[static.cell_edge], a[static.cell_edge]
+    lay = day_layout(static, shift)
+    base_c, a_c = base[lay.cell_edge], a[lay.cell_edge]
     x = jnp.moveaxis(choices, 0, -1)  # batch last
     if not is_prob:
         x = x.astype(jnp.int32)
@@ -286,7 +344,7 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
 
     def day_chunk(c: jax.Array) -> jax.Array:
         if static.queue is None:
-            return _day_chunk(c, base_c, a_c, static)
+            return _day_chunk(c, base_c, a_c, lay.cell_cap, lay.cells, static)
         return _queue_day_chunk(c, base_c, a_c, jnp.exp(params["log_agent"]), params, static)
 
     if size >= B:
@@ -299,7 +357,7 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
         xs = jnp.moveaxis(x.reshape((*x.shape[:-1], n_chunks, size)), -2, 0)
         out = jax.lax.map(day_chunk, xs)  # [n_chunks, N, size]
         sec = jnp.moveaxis(out, 0, 1).reshape(static.n, -1)[:, :B]
-    ins = jnp.exp(params["log_ins"]) * static.origin_load[:, None]
+    ins = jnp.exp(params["log_ins"]) * lay.origin_load[:, None]
     if static.queue is None:
         sec = sec * jnp.exp(params["log_agent"])[:, None] + ins + params["intercept"]
     else:  # the per-agent factor is already on the BPR part only
@@ -316,6 +374,18 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array) ->
 
 predict_jit = jax.jit(predict)
 
+
+def predict_days(params: dict[str, jax.Array], static: Static, choices: jax.Array,
+                 shift: jax.Array | None = None) -> jax.Array:
+    """Minutes [D, N] of D days of choices [D, N] (or [D, N, K]); `shift` [D, N]: each day's own
+    departure shifts (days whose departures move), None: every day as scheduled (one batch)."""
+    if shift is None:
+        return predict(params, static, choices)
+    return jax.vmap(lambda c, s: predict(params, static, c, s))(choices, shift)
+
+
+predict_days_jit = jax.jit(predict_days)
+
 MIN_BUCKET = 8
 
 
@@ -325,12 +395,18 @@ def bucket_size(n: int) -> int:
     return max(MIN_BUCKET, 1 << max(n - 1, 0).bit_length())
 
 
-def predict_bucketed(params: dict[str, jax.Array], static: Static, choices: np.ndarray) -> np.ndarray:
-    """`predict_jit` of D days of route indices [D, N] -> minutes [D, N], run at D padded to
-    `bucket_size(D)` (route-0 days, dropped): the trainer's growing set of SUMO days does not
-    recompile it every round. Days are independent; the padded width changes XLA's vectorised
-    loops, so a day's times can differ from an unpadded call's in the last bit (~1e-7 min)."""
+def predict_bucketed(params: dict[str, jax.Array], static: Static, choices: np.ndarray,
+                     shift: np.ndarray | None = None) -> np.ndarray:
+    """`predict_days_jit` of D days of route indices [D, N] (each day's departure shifts [D, N], or
+    None) -> minutes [D, N], run at D padded to `bucket_size(D)` (route-0 days, dropped): the
+    trainer's growing set of SUMO days does not recompile it every round. Days are independent; the
+    padded width changes XLA's vectorised loops, so a day's times can differ from an unpadded call's
+    in the last bit (~1e-7 min)."""
     d = choices.shape[0]
     padded = np.zeros((bucket_size(d), static.n), np.int32)  # [B, N]
     padded[:d] = choices
-    return np.asarray(predict_jit(params, static, jnp.asarray(padded)))[:d]
+    if shift is None:
+        return np.asarray(predict_jit(params, static, jnp.asarray(padded)))[:d]
+    shifts = np.zeros(padded.shape, np.float32)
+    shifts[:d] = shift
+    return np.asarray(predict_days_jit(params, static, jnp.asarray(padded), jnp.asarray(shifts)))[:d]

@@ -1,13 +1,16 @@
 """Departures that vary day to day (task key day_departure_jitter_s): each day's departures are a
 reproducible draw around the scheduled ones; SUMO inserts each vehicle at its day's second and
-URB's travel time counts from it; the runs' post-mutation SUMO days get their day's departures and
-the human phase keeps the scheduled ones; runs that cannot honour the option refuse it."""
+URB's travel time counts from it; the surrogate's day of the same index moves by the same draw; the
+runs' post-mutation SUMO days get their day's departures (and are refitted on with them) and the
+human phase keeps the scheduled ones; runs that cannot honour the option refuse it."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from support.fakeday import FakeExecutor
@@ -16,10 +19,15 @@ from support.tiny_runs import train_iql
 from urb_jax.core.errors import ConfigError
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.demand import DepartureJitter, jittered_departures
+from urb_jax.game.env import RoutingEnv
+from urb_jax.game.mutation import draw_cavs
 from urb_jax.runs.setup import check_departure_jitter
 from urb_jax.sumo_bridge import day_key, run_day
 from urb_jax.sumo_bridge.keys import routes_key, scenario_key
 from urb_jax.sumo_bridge.scheduler import KEPT_SCENARIOS, KeptScenarios
+from urb_jax.surrogate import SumoSample, SurrogateConfig, build_static, init_params
+from urb_jax.surrogate.calibrate import FitConfig, loss_fn
+from urb_jax.surrogate.model import predict_days
 
 
 def test_a_days_departures_are_a_reproducible_bounded_draw():
@@ -56,6 +64,60 @@ def test_sumo_inserts_each_vehicle_at_its_days_second(grid_scenario):
     assert day_key(moved, choice, 42, None, None) != day_key(lone, choice, 42, None, None)
 
 
+def test_the_model_day_gets_its_days_shifts_in_the_program(grid_scenario):
+    """A model day on day index d is given exactly SUMO day d's departures minus the schedule, drawn
+    inside the jitted step from the traced day counter."""
+    scn = grid_scenario
+    jitter = DepartureJitter(seed=7, jitter_s=120)
+
+    def shift_as_time(params, choices, shift):  # minutes = 1 + the shift in seconds
+        return 1.0 + params["scale"] * shift
+
+    env = RoutingEnv(scn, draw_cavs(0, scn.n_agents, 0.4), shift_as_time, depart_jitter=jitter,
+                     default_params={"scale": jnp.asarray(1.0)})
+    _, state = env.reset(jax.random.PRNGKey(0))
+    step = jax.jit(env.step)
+    actions = jnp.zeros((env.n_cavs,), jnp.int32)
+    for day in (0, 5, 6):
+        state = state._replace(day=jnp.asarray(day, jnp.int32))
+        times = np.asarray(step(jax.random.PRNGKey(1), state, actions)[1].times)
+        expected = jittered_departures(7, 120, day, scn.agent_depart) - scn.agent_depart
+        np.testing.assert_array_equal(times, 1.0 + expected)
+    with pytest.raises(ValueError, match="day index"):
+        env.travel_times(None, env.joint_actions(state, actions))
+
+
+def test_a_sample_of_moved_days_is_fitted_with_its_shifts(grid_scenario):
+    """SUMO days whose departures moved carry their shifts (scheduled days: zeros when mixed); the
+    calibration loss predicts each day with its own shifts: days made by the model under their
+    shifts have no error at the model's parameters, and read as scheduled they would."""
+    scn = grid_scenario
+    static = build_static(scn, SurrogateConfig(chunk=32), max_shift_s=300.0)
+    params = init_params(static)
+    params = {**params, "log_a_c": params["log_a_c"] + 2.5}
+    rng = np.random.default_rng(2)
+    choices = rng.integers(0, scn.k, (3, scn.n_agents)).astype(np.int32)
+    shift = np.stack([jittered_departures(7, 300, d, scn.agent_depart) - scn.agent_depart
+                      for d in range(3)]).astype(np.float32)
+    times = np.asarray(predict_days(params, static, jnp.asarray(choices), jnp.asarray(shift)))
+    moved = SumoSample(choices, times, np.ones_like(choices, bool), shift)
+    sched = SumoSample(choices[:1], times[:1], np.ones_like(choices[:1], bool))
+    both = sched + moved
+    np.testing.assert_array_equal(both.shifts(), np.concatenate([np.zeros_like(shift[:1]), shift]))
+    np.testing.assert_array_equal(both.days([2]).shift, shift[1:2])
+    assert (sched + sched).shift is None
+
+    def loss(sample: SumoSample) -> float:
+        data = {"choices": jnp.asarray(sample.choices), "travel_time": jnp.asarray(sample.travel_time),
+                "arrived": jnp.asarray(sample.arrived)}
+        if sample.shift is not None:
+            data["shift"] = jnp.asarray(sample.shift)
+        return float(loss_fn(params, static, data, params, FitConfig(edge_prior=0.0, agent_prior=0.0)))
+
+    assert loss(moved) < 1e-10
+    assert loss(SumoSample(choices, times, moved.arrived)) > 1e-6
+
+
 def test_kept_scenarios_drop_the_oldest_as_both_sides_do():
     kept: KeptScenarios[int] = KeptScenarios()
     dropped = [kept.add(f"k{i}", i) for i in range(KEPT_SCENARIOS + 2)]
@@ -87,11 +149,20 @@ def test_a_runs_days_after_mutation_leave_at_their_days_seconds(tiny_iql_confs, 
     for d in moved:  # each is one day's draw of the env seed
         assert any(np.array_equal(d, v) for v in draws)
     assert len({d.tobytes() for d in moved}) > 1  # the days differ
+    # the surrogate refits on each SUMO day with that day's departures (the checkpoint keeps them)
+    newest = max(tmp_path.rglob("sumo_days.npz"), key=lambda p: p.parent.name)  # checkpoints/round_N
+    shifts = np.load(newest)["shift_0"]  # [D, N]: the calibration days, then the SUMO training days
+    later = shifts[~(shifts == 0).all(axis=1)]
+    assert len(later) >= 2 and len(later) < len(shifts)
+    for row in later:
+        assert any(np.array_equal(row, v - sched) for v in draws)
 
 
 def test_runs_that_cannot_honour_jitter_refuse_it():
     task, path = TaskConfig(day_departure_jitter_s=60), Path("task.json")
     check_departure_jitter(task, path, train=True)
+    with pytest.raises(ConfigError, match="queue surrogate.*surrogate_model"):
+        check_departure_jitter(task, path, train=True, surrogate_model="queue")
     check_departure_jitter(task, path, train=False, baseline="aon")
     with pytest.raises(ConfigError, match=r"task.json: key 'day_departure_jitter_s' = 60.*the 'human'"):
         check_departure_jitter(task, path, train=False, baseline="human")

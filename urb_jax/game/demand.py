@@ -13,11 +13,10 @@ learn that day, and it is left out of the day's means.
 With `day_departure_jitter_s = J > 0` each driver leaves on a given day at its scheduled second plus
 an offset drawn uniformly from the integers in [-J, J] (never before second 0), a pure function of
 (env seed, day index) under its own stream (`DEPART_STREAM`). SUMO's day inserts every vehicle at
-its jittered second, and URB's travel time counts from it. The surrogate's days keep the scheduled
-departures: its index arrays (the time bin each route entry falls in, the insertion windows) are
-built once from them, so a surrogate day is the scheduled day, calibrated and refitted on SUMO days
-that carry the jitter. CAVs observe the scheduled departures (the jitter is noise around a plan
-they know).
+its jittered second, and URB's travel time counts from it. The surrogate's day of the same index
+places every route entry, and the insertion load, by the same departures (`DepartureJitter.shift`,
+drawn in the program from the traced day index), and it is refitted on SUMO days with their own
+departures. CAVs observe the scheduled departures (the jitter is noise around a plan they know).
 """
 
 from __future__ import annotations
@@ -76,6 +75,14 @@ class DepartureJitter:
         """[N] int64 seconds: day `day`'s departures of drivers scheduled at `scheduled` [N]."""
         return jittered_departures(self.seed, self.jitter_s, day, scheduled)
 
+    def shift(self, day: jax.Array | int, scheduled: np.ndarray) -> jax.Array:
+        """[N] float32 seconds each driver leaves off its schedule `scheduled` [N] on day `day`
+        (jittable; `day` may be traced): `departures(day, scheduled) - scheduled`, what the
+        surrogate's day is placed by."""
+        sched = jnp.asarray(scheduled, jnp.int32)
+        offset = _offsets(self.seed, self.jitter_s, day, sched.shape)
+        return (jnp.maximum(sched + offset, 0) - sched).astype(jnp.float32)
+
     def scenario_on(self, scenario: Scenario, day: int) -> Scenario:
         """`scenario` with day `day`'s departures (the same agents, in the same order, and routes):
         what SUMO runs that day."""
@@ -88,10 +95,15 @@ def jittered_departures(seed: int, jitter_s: int, day: int, scheduled: np.ndarra
     [-jitter_s, jitter_s])): a pure function of its arguments, so every run with the same env seed
     sees the same departures on a day of the same index."""
     scheduled = np.asarray(scheduled, dtype=np.int64)
+    offset = np.asarray(_offsets(seed, jitter_s, day, scheduled.shape), dtype=np.int64)
+    return np.maximum(scheduled + offset, 0)
+
+
+def _offsets(seed: int, jitter_s: int, day: jax.Array | int, shape: tuple[int, ...]) -> jax.Array:
+    """int32 offsets in [-jitter_s, jitter_s], the one draw of day `day`'s departures."""
     key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), DEPART_STREAM),
                              jnp.asarray(day, jnp.uint32))
-    offset = np.asarray(jax.random.randint(key, scheduled.shape, -jitter_s, jitter_s + 1), dtype=np.int64)
-    return np.maximum(scheduled + offset, 0)
+    return jax.random.randint(key, shape, -jitter_s, jitter_s + 1)
 
 
 def scenario_on_day(scenario: Scenario, jitter: DepartureJitter | None, day: int) -> Scenario:

@@ -5,7 +5,8 @@ model (`urb_jax.game.humans`); travel times come from a jittable `travel_time_fn
 or anything else) or are measured outside (SUMO: `step_with_times`); CAV rewards follow the task's
 behaviour (`urb_jax.game.rewards`). Parameters of `travel_time_fn` are explicit, gymnax-style:
 `step(key, state, actions, params)`, so a refitted surrogate swaps in without recompiling; an
-env with `default_params` calls `travel_time_fn(params, choices)`, one without `travel_time_fn(choices)`.
+env with `default_params` calls `travel_time_fn(params, choices)`, one without `travel_time_fn(choices)`;
+where departures move day to day (`depart_jitter`) the day's departure shifts [N] come last.
 
 Departure order (AEC semantics): a CAV observes the choices of agents that departed earlier
 today. Humans' choices for a day are drawn when the previous day ends (stored in the state), so
@@ -41,7 +42,8 @@ from urb_jax.game.rewards import (
 
 # Parameters of travel_time_fn (a pytree, e.g. the surrogate's); None for a parameter-free model.
 EnvParams = Any
-# travel_time_fn(choices[N]) -> minutes [N], or travel_time_fn(params, choices[N]) with default_params.
+# travel_time_fn(choices[N]) -> minutes [N], or travel_time_fn(params, choices[N]) with default_params;
+# with depart_jitter also the day's departure shifts: travel_time_fn(params, choices[N], shift[N]).
 TravelTimeFn = Callable[..., jnp.ndarray]
 StepResult = tuple[jnp.ndarray, "EnvState", jnp.ndarray, jnp.ndarray, dict[str, jnp.ndarray]]
 Margins = tuple[jnp.ndarray, jnp.ndarray]  # (externalities [3, N], model times [N]): rewards.externalities
@@ -83,8 +85,8 @@ class RoutingEnv:
     marginal_cost_beta: float = 0.0
     # Demand that varies day to day (game.demand): who travels on day `state.day`; None: everyone
     day_demand: DayDemand | None = None
-    # Departures that vary day to day (game.demand): SUMO's day `state.day` runs `sumo_scenario(day)`;
-    # the model's days keep the scheduled departures; None: as scheduled
+    # Departures that vary day to day (game.demand): SUMO's day `state.day` runs `sumo_scenario(day)`,
+    # and travel_time_fn takes that day's departure shifts [N] as a last argument; None: as scheduled
     depart_jitter: DepartureJitter | None = None
     # Competing fleets (game.mutation.split_fleets): [N] each agent's fleet, -1 for a human, and each
     # fleet's reward coefficients; None: one fleet, paid `reward_coefficients`
@@ -194,14 +196,20 @@ class RoutingEnv:
         """Centralised critic / mixer input: every CAV's observation, flattened [C * obs_size]."""
         return obs.reshape(*obs.shape[:-2], -1)
 
-    def travel_times(self, params: EnvParams, choices: jnp.ndarray) -> jnp.ndarray:
-        """[N] minutes of `choices` [N] from travel_time_fn (params None: default_params)."""
+    def travel_times(self, params: EnvParams, choices: jnp.ndarray, day: jax.Array | int | None = None
+                     ) -> jnp.ndarray:
+        """[N] minutes of `choices` [N] from travel_time_fn (params None: default_params) on day
+        index `day` (`state.day`; needed where departures move: the fn gets that day's shifts)."""
         if self.travel_time_fn is None:
             raise TypeError("this env has no travel_time_fn: its days are simulated outside "
                             "(use step_with_times)")
-        if self.default_params is None:
-            return self.travel_time_fn(choices)
-        return self.travel_time_fn(self.default_params if params is None else params, choices)
+        args = (choices,) if self.default_params is None else (
+            self.default_params if params is None else params, choices)
+        if self.depart_jitter is None:
+            return self.travel_time_fn(*args)
+        if day is None:
+            raise ValueError("departures move day to day (depart_jitter): travel_times needs the day index")
+        return self.travel_time_fn(*args, self.depart_jitter.shift(day, self.scenario.agent_depart))
 
     def step(self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray,
              params: EnvParams = None) -> StepResult:
@@ -211,14 +219,15 @@ class RoutingEnv:
         choices = self.joint_actions(state, cav_actions)
         keys = DayKeys(*jax.random.split(key))
         if self.uses_model:
-            model = self.model_externalities(params, choices)
+            model = self.model_externalities(params, choices, state.day)
             return self._end_day(keys, state, cav_actions, choices, model[1], model)
-        return self._end_day(keys, state, cav_actions, choices, self.travel_times(params, choices))
+        return self._end_day(keys, state, cav_actions, choices, self.travel_times(params, choices, state.day))
 
-    def model_externalities(self, params: EnvParams, choices: jnp.ndarray) -> Margins:
-        """(externalities [3, N], model times [N]) of `choices` under travel_time_fn
-        (game.rewards.externalities)."""
-        return externalities(lambda probs: self.travel_times(params, probs), choices, self.is_cav,
+    def model_externalities(self, params: EnvParams, choices: jnp.ndarray,
+                            day: jax.Array | int | None = None) -> Margins:
+        """(externalities [3, N], model times [N]) of `choices` under travel_time_fn on day index
+        `day` (game.rewards.externalities)."""
+        return externalities(lambda probs: self.travel_times(params, probs, day), choices, self.is_cav,
                              self.n_actions)
 
     def step_with_times(self, key: jax.Array | DayKeys, state: EnvState, cav_actions: jnp.ndarray,

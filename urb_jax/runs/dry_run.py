@@ -51,7 +51,7 @@ def plan_train(req: TrainRequest) -> TrainPlan:
     req = req.resolved()
     setup = load_setup(req)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode,
-                   alg=req.alg, alg_config=setup.alg_config)
+                   alg=req.alg, alg_config=setup.alg_config, surrogate_model=setup.hyb.surrogate_model)
     if req.human_phase_from:
         _check_source(Path(req.results_dir), req.human_phase_from)
     return TrainPlan(req, setup, train_configs(req), _folders(req, setup))

@@ -141,7 +141,8 @@ def scenario_of(net: str | None, networks_dir: str | None, env_seed: int, env: E
 
 
 def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: bool, mode: str = "hybrid",
-                   alg: str = "", alg_config: Any = None, baseline: str = "") -> None:
+                   alg: str = "", alg_config: Any = None, baseline: str = "",
+                   surrogate_model: str = "bpr") -> None:
     """Refuse, before any SUMO day, a task whose URB metrics could not exist: no human day (t_pre),
     no test day (t_CAV, t_test, WR), or, for training, no CAV to train; a marginal credit
     without a calibrated surrogate to take its derivative (baselines, `--mode sumo`); demand varying
@@ -149,7 +150,8 @@ def check_runnable(task: TaskConfig, task_path: Path, n_agents: int, *, train: b
     and departures varying day to day likewise (`check_departure_jitter`)."""
     check_day_demand(task, task_path, train=train, alg=canonical(alg) if alg else "", alg_config=alg_config,
                      baseline=baseline)
-    check_departure_jitter(task, task_path, train=train, baseline=baseline)
+    check_departure_jitter(task, task_path, train=train, baseline=baseline,
+                           surrogate_model=surrogate_model if mode != "sumo" else "")
     check_fleets(task, task_path, n_agents, train=train)
     where = f"task config {task_path}"
     needs = task.surrogate_reward_keys
@@ -224,13 +226,20 @@ def check_day_demand(task: TaskConfig, task_path: Path, *, train: bool, alg: str
                           "reward_credit 'group' and marginal_cost_beta 0, or day_participation to 1.")
 
 
-def check_departure_jitter(task: TaskConfig, task_path: Path, *, train: bool, baseline: str = "") -> None:
+def check_departure_jitter(task: TaskConfig, task_path: Path, *, train: bool, baseline: str = "",
+                           surrogate_model: str = "") -> None:
     """Refuse, before any day, a run that cannot honour `day_departure_jitter_s` > 0: the protocols
-    whose days are not wired to it (as for `day_participation`)."""
+    whose days are not wired to it (as for `day_participation`), and the queue surrogate (its entries
+    are placed once, from the scheduled departures); `surrogate_model`: the run's ("" none)."""
     if not task.jitters_departures:
         return
     where = f"task config {task_path}: key 'day_departure_jitter_s' = {task.day_departure_jitter_s}"
     _refuse_unwired(where, "departures", train=train, baseline=baseline, off="day_departure_jitter_s to 0")
+    if surrogate_model == "queue":
+        raise ConfigError(f"{where}: the queue surrogate places its entries from the scheduled departures, "
+                          "so its days cannot follow departures that move. Fix: set the hybrid config's key "
+                          "'surrogate_model' to 'bpr' (--set hybrid.surrogate_model=bpr), or "
+                          "day_departure_jitter_s to 0.")
 
 
 def _refuse_unwired(where: str, varying: str, *, train: bool, baseline: str, off: str) -> None:

@@ -133,7 +133,7 @@ def run_train(req: TrainRequest, *, executor: DayExecutor | None = None, stop_af
     t0 = time.perf_counter()
     setup = load_setup(req)
     check_runnable(setup.task, setup.task_path, setup.scn.n_agents, train=True, mode=req.mode,
-                   alg=req.alg, alg_config=setup.alg_config)
+                   alg=req.alg, alg_config=setup.alg_config, surrogate_model=setup.hyb.surrogate_model)
     check_emission_source(setup, executor)
     config = _train_config(setup, req)
     human = None  # checked before any results folder is created

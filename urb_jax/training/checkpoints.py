@@ -120,6 +120,8 @@ def save_round(folder: Path, state: Any, samples: Sequence[SumoSample], meta: Ro
     for i, sample in enumerate(samples):
         arrays |= {f"choices_{i}": sample.choices, f"travel_time_{i}": sample.travel_time,
                    f"arrived_{i}": sample.arrived}
+        if sample.shift is not None:  # days whose departures moved
+            arrays[f"shift_{i}"] = sample.shift
     _check_space(d, sum(a.nbytes for a in (*leaves.values(), *arrays.values())))
     save_checkpoint(d / "state", leaves)
     write_npz(d / "sumo_days.npz", **arrays)
@@ -215,7 +217,8 @@ def restore_round(folder: Path, target: Any, seeds: Sequence[int], rounds_done: 
         raise RuntimeError(f"{ckpt}: checkpoint holds seeds {meta['seeds']}, not {list(seeds)}")
     state = _restore_state(ckpt / "state", target)
     z = np.load(ckpt / "sumo_days.npz")
-    samples = [SumoSample(z[f"choices_{i}"], z[f"travel_time_{i}"], z[f"arrived_{i}"])
+    samples = [SumoSample(z[f"choices_{i}"], z[f"travel_time_{i}"], z[f"arrived_{i}"],
+                          z[f"shift_{i}"] if f"shift_{i}" in z.files else None)
                for i in range(len(seeds))]
     return state, samples, RoundMeta(rounds_done, meta["sumo_days"], list(seeds), meta.get("folders", []),
                                      meta["record_parts"], meta["rounds"], meta.get("rounds_total"),

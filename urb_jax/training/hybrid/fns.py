@@ -21,8 +21,9 @@ import jax.numpy as jnp
 from urb_jax.algorithms.learner import Day, Learner, Metrics, collect
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.rollout import act_by_levels, dependency_levels
-from urb_jax.surrogate import Static, predict
+from urb_jax.surrogate import Static
 from urb_jax.surrogate.calibrate import Params
+from urb_jax.surrogate.model import predict_days
 from urb_jax.training.hybrid.memory import tree_size
 
 Runner = Any  # the learner's runner state (an algorithm-specific pytree), [S] leading
@@ -50,7 +51,8 @@ class TrainerFns(NamedTuple):
     #   -> (real, days [S, 1, R, ...]); the params give the marginal credit's derivative
     sumo_step: Callable[[jax.Array, EnvState, jnp.ndarray, jnp.ndarray, jnp.ndarray, Params],
                         tuple[EnvState, Day]]
-    predict_days: Callable[[Params, jnp.ndarray], jnp.ndarray]  # surrogate times [S, P, N]
+    # (params [S], choices [S, P, N], each day's departure shifts [S, P, N] or None) -> minutes [S, P, N]
+    predict_days: Callable[[Params, jnp.ndarray, jnp.ndarray | None], jnp.ndarray]
     split_p: Callable[[jax.Array], jax.Array]  # keys [S, 2] -> [S, P, 2]
     round_keys: Callable[[jax.Array, int], jax.Array]  # (keys [S, 2], round) -> [S, 4, 2]
     fresh_runner_real: Callable[[jax.Array], tuple[Runner, EnvState]]  # start keys [S, 2]
@@ -129,7 +131,7 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
                    times: jnp.ndarray, params: Params) -> tuple[EnvState, Day]:
         if real_env.uses_model:  # SUMO measures the day, the surrogate its derivative
             choices = jax.vmap(real_env.joint_actions)(states, actions)
-            model = jax.vmap(lambda c: env.model_externalities(params, c))(choices)
+            model = jax.vmap(lambda c, d: env.model_externalities(params, c, d))(choices, states.day)
             step = jax.vmap(real_env.step_with_times)
             next_obs, states, rewards, dones, info = step(keys, states, actions, times, model)
         else:
@@ -156,7 +158,8 @@ def build_fns(env: RoutingEnv, env_kwargs: dict[str, Any], learner: Learner, sta
         act_explore=jax.jit(over(lambda r, k, s: _act(r, k, s, True))),
         act_greedy=jax.jit(over(lambda r, k, s: _act(r, k, s, False))),
         sumo_step=jax.jit(jax.vmap(_sumo_step)),
-        predict_days=jax.jit(jax.vmap(lambda params, choices: predict(params, static, choices))),
+        predict_days=jax.jit(jax.vmap(lambda params, choices, shift: predict_days(params, static, choices,
+                                                                                  shift))),
         split_p=jax.vmap(lambda k: jax.random.split(k, P)),
         round_keys=jax.jit(jax.vmap(lambda k, r: jax.random.split(jax.random.fold_in(k, r), 4), (0, None))),
         fresh_runner_real=fresh_runner_real,

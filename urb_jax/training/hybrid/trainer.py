@@ -223,7 +223,8 @@ def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: in
     """(is_cav [N], static, env kwargs, the surrogate env, uncalibrated). `humans` None: a placeholder
     of the right shapes (a resume's checkpoint, or a dry run, replaces it)."""
     is_cav = draw_cavs(env_seed, scn.n_agents, task.ratio_machines, agent_id=scn.agent_id)
-    static = build_static(scn, cfg.surrogate_config)
+    max_shift = float(task.day_departure_jitter_s) if task.jitters_departures else None
+    static = build_static(scn, cfg.surrogate_config, max_shift)  # moving departures: their entries too
     env_kwargs = routing_env_kwargs(task, env_cfg, env_seed, is_cav)
     if humans is None:
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid),
@@ -295,8 +296,8 @@ def routing_env_kwargs(task: TaskConfig, env_cfg: EnvConfig, env_seed: int,
 def surrogate_env(scn: Scenario, is_cav: np.ndarray, static: Static, humans: HumanState, params: Params,
                   env_kwargs: dict[str, Any]) -> RoutingEnv:
     """The env whose days the surrogate simulates under `params` (its default_params)."""
-    def sur_fn(p: Params, choices: jnp.ndarray) -> jnp.ndarray:
-        return predict(p, static, choices)
+    def sur_fn(p: Params, choices: jnp.ndarray, shift: jnp.ndarray | None = None) -> jnp.ndarray:
+        return predict(p, static, choices, shift)  # shift: the day's departures off schedule
 
     return RoutingEnv(scn, is_cav, sur_fn, human_init=humans, default_params=params, **env_kwargs)
 
@@ -371,6 +372,12 @@ class HybridTrainer:
         state, self.samples, meta = restore_round(self.g.folders[0], shapes, self.g.seeds, rounds_done)
         self.state = TrainState(**state)
         self.rounds_logs, self.sumo_done = meta.rounds, meta.sumo_days
+        if (self.g.depart_jitter is not None and self.g.mode == "hybrid" and self.sumo_done
+                and any(sample.shift is None for sample in self.samples)):
+            raise UrbJaxError(f"{self.g.folders[0]}: its checkpoint's SUMO days have no departure shifts (a "
+                              "version whose surrogate kept the scheduled departures), so its refits cannot "
+                              "go on. Fix: resume with the version of urb-jax that started the run, or start "
+                              "it again with --overwrite.")
         self.set_params()
         return meta
 
@@ -450,12 +457,15 @@ class HybridTrainer:
         updates on them, their records, then (mode hybrid) the refit."""
         g = self.g
         t0 = time.perf_counter()
-        choices, results, times, days, loss = self.play_sumo_days(k_act, k_step, k_upd, p)
-        pred = np.asarray(g.fns.predict_days(self.state.params, jnp.asarray(choices)))  # before the refit
+        choices, results, times, days, loss, day_index = self.play_sumo_days(k_act, k_step, k_upd, p)
+        shift = self.day_shifts(day_index)  # [S, p, N] or None
+        pred = np.asarray(g.fns.predict_days(  # before the refit
+            self.state.params, jnp.asarray(choices), None if shift is None else jnp.asarray(shift)))
         for i in range(g.S):
             res_i = results[i * p:(i + 1) * p]
             if g.mode == "hybrid":  # only the refit reads them: other modes' checkpoints stay bounded
-                self.samples[i] = self.samples[i] + SumoSample.from_days(choices[i], res_i)
+                self.samples[i] = self.samples[i] + SumoSample.from_days(
+                    choices[i], res_i, None if shift is None else shift[i])
             record_days(self.writers[i], g.H + self.sumo_done, PHASE_TRAIN, choices[i], g.is_cav, res_i,
                         _take(days, i), g.cav_index)
         self.sumo_done += p
@@ -470,12 +480,24 @@ class HybridTrainer:
                         sumo_tCAV=float(np.mean([row["sumo_time_cav"] for row in rows])),
                         sumo_tHDV=float(np.mean([row["sumo_time_hdv"] for row in rows])))
 
+    def day_shifts(self, day_index: np.ndarray) -> np.ndarray | None:
+        """[..., N] seconds each driver left off its schedule on the days of index `day_index` [...]
+        (None: departures as scheduled every day)."""
+        g = self.g
+        if g.depart_jitter is None:
+            return None
+        sched = g.scn.agent_depart
+        flat = [g.depart_jitter.departures(int(d), sched) - sched for d in day_index.reshape(-1)]
+        return np.stack(flat).astype(np.float32).reshape(*day_index.shape, len(sched))
+
     def play_sumo_days(self, k_act: jax.Array, k_step: jax.Array, k_upd: jax.Array, p: int
-                       ) -> tuple[np.ndarray, list[DayResult], np.ndarray, Day, np.ndarray | None]:
+                       ) -> tuple[np.ndarray, list[DayResult], np.ndarray, Day, np.ndarray | None,
+                                  np.ndarray]:
         """(choices [S, p, N], SUMO results [S * p] seed-major, times [S, p, N], days [S, 1, p, ...],
-        the updates' mean loss [S] or None) for p <= P days a seed: the real humans advance by SUMO's
-        times, then `sumo_updates` updates. Frozen humans: the S x p days go to the executor as one
-        batch (p < P: the first p of the P copies play, the others stay as they were); adapting
+        the updates' mean loss [S] or None, each day's index [S, p]) for p <= P days a seed: the
+        real humans advance by SUMO's times, then `sumo_updates` updates. Frozen humans: the S x p
+        days go to the executor as one batch (p < P: the first p of the P copies play, the others
+        stay as they were); adapting
         humans: the population lives the p days in order, S days (one per seed) at a time. Day d
         has the keys it has in a full round."""
         g, s = self.g, self.state
@@ -485,14 +507,14 @@ class HybridTrainer:
         for c in range(0, p, R):
             b = min(R, p - c)  # days played of the R copies
             before = real
-            choices, results, times, real, days = self.sumo_days(
+            choices, results, times, real, days, day_index = self.sumo_days(
                 g.fns.act_explore, keys_act[:, c:c + R], keys_step[:, c:c + R], real, b, self.executor)
             if b < R:  # only the copies that played a day moved on
                 real = jax.tree_util.tree_map(lambda new, old, b=b: jnp.concatenate(
                     [new[:, :b], old[:, b:]], axis=1), real, before)
                 times = times[:, :b]
                 days = jax.tree_util.tree_map(lambda x, b=b: x[:, :, :b], days)
-            parts.append((choices, results, times, days))
+            parts.append((choices, results, times, days, day_index))
         choices = np.concatenate([x[0] for x in parts], axis=1)
         results = [res for i in range(g.S) for x in parts
                    for res in x[1][i * x[0].shape[1]:(i + 1) * x[0].shape[1]]]
@@ -504,26 +526,29 @@ class HybridTrainer:
             if "loss" in m:
                 losses.append(np.asarray(m["loss"]).reshape(g.S, -1).mean(1))
         self.state = s._replace(runner=runner, real=real)
-        return choices, results, times, days, np.mean(losses, axis=0) if losses else None
+        day_index = np.concatenate([x[4] for x in parts], axis=1)
+        return choices, results, times, days, np.mean(losses, axis=0) if losses else None, day_index
 
     def sumo_days(self, act: ActFn, k_act: jax.Array, k_step: jax.Array, real: EnvState, b: int,
-                  executor: DayExecutor) -> tuple[np.ndarray, list[DayResult], np.ndarray, EnvState, Day]:
+                  executor: DayExecutor
+                  ) -> tuple[np.ndarray, list[DayResult], np.ndarray, EnvState, Day, np.ndarray]:
         """The one SUMO leg of training and test days: the policies act (`act`, exploring or greedy)
         on keys [S, r, 2]; the first b <= r days of every seed run on `executor` as one batch of
         S x b; the real days step on SUMO's times (days past b repeat the first: their humans are
-        frozen). Returns (choices [S, b, N], results [S * b] seed-major, times [S, r, N], real, days)."""
+        frozen). Returns (choices [S, b, N], results [S * b] seed-major, times [S, r, N], real, days,
+        the played days' indices [S, b])."""
         g, s = self.g, self.state
         n, r = g.scn.n_agents, k_act.shape[1]
         choices: jax.Array | np.ndarray  # the jitted act's, then numpy (np.asarray)
         obs, actions, choices = act(s.runner, k_act, real)
         choices = np.asarray(choices)[:, :b]  # [S, b, N]
-        results = self.run_on_days(executor, choices.reshape(g.S * b, n),
-                                   np.asarray(real.day).reshape(g.S, -1)[:, :b].reshape(-1))
+        day_index = np.asarray(real.day).reshape(g.S, -1)[:, :b]  # [S, b]
+        results = self.run_on_days(executor, choices.reshape(g.S * b, n), day_index.reshape(-1))
         times = np.zeros((g.S, r, n), np.float32)
         times[:, :b] = np.stack([res.travel_time for res in results]).reshape(g.S, b, n)
         times[:, b:] = times[:, :1]
         real, days = g.fns.sumo_step(k_step, real, obs, actions, jnp.asarray(times), s.params)
-        return choices, results, times, real, days
+        return choices, results, times, real, days, day_index
 
     def run_on_days(self, executor: DayExecutor, choices: np.ndarray, days: np.ndarray) -> list[DayResult]:
         """SUMO days of `choices` [B, N] in order, row i on day index `days[i]` (its real copy's
@@ -583,7 +608,7 @@ class HybridTrainer:
         g, s = self.g, self.state
         b = min(g.R, g.E - start_day)
         kt = jax.vmap(lambda k, d=start_day: jax.random.split(jax.random.fold_in(k, d)))(g.keys.test)
-        choices, results, times, real, days = self.sumo_days(
+        choices, results, times, real, days, _ = self.sumo_days(
             g.fns.act_greedy, g.fns.split_p(kt[:, 0])[:, :g.R], g.fns.split_p(kt[:, 1])[:, :g.R], s.real, b,
             executor)
         self.state = s._replace(real=real)
