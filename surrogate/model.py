@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
-from urb_jax.surrogate.departures import DepartIndex, build_depart_index, day_cells
+from urb_jax.surrogate.departures import DepartIndex, build_depart_index, day_weights, reachable_bins
 from urb_jax.surrogate.queue import QueueIndex, build_queue_index, init_queue_params, queue_route_delays
 
 # Junction classes for the junction/signal delay term (the edge's downstream junction).
@@ -128,10 +128,10 @@ def day_layout(static: Static, shift: jax.Array | None) -> DayLayout:
     if static.queue is not None:
         raise ValueError("the queue model places its entries from the scheduled departures: days whose "
                          "departures move need surrogate_model 'bpr'")
-    row, cell, weight, load = day_cells(index, shift)
-    cell_edge = jnp.arange(index.n_cells, dtype=jnp.int32) // index.n_bins
-    return DayLayout(Cells(row, cell, weight, row, cell, weight, index.n_cells, False), cell_edge,
-                     index.edge_cap[cell_edge], load)
+    flow_w, time_w, load = day_weights(index, shift)
+    cells = Cells(static.flow_row, static.flow_cell, flow_w, static.time_row, static.time_cell, time_w,
+                  static.n_cells, True)
+    return DayLayout(cells, static.cell_edge, static.cell_cap, load)
 
 
 def junction_types(net_file: str, edge_ids: tuple[str, ...]) -> list[str]:
@@ -180,8 +180,8 @@ def _origin_load(scn: Scenario, window: float) -> np.ndarray:
 def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
                  max_shift_s: float | None = None) -> Static:
     """Precompute the (agent, route, edge, bin) entries, the compact cells and the edge features;
-    `max_shift_s` set: also the entries of days whose drivers leave up to that many seconds off
-    their schedule (`predict(..., shift=)`)."""
+    `max_shift_s` set: an entry in every bin it reaches when its driver leaves up to that many
+    seconds off schedule (zero-weighted when scheduled), for `predict(..., shift=)`."""
     if config.model not in MODELS:
         raise ValueError(f"surrogate model {config.model!r} is not one of {', '.join(MODELS)}")
     routes = scn.routes  # [N, K, L]
@@ -204,6 +204,12 @@ def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
     w = np.concatenate([1.0 - f, f])
     keep = w > 0
     row, edge, b, w = row[keep], edge[keep], b[keep], w[keep]
+    if max_shift_s is not None:  # departures that move: every bin an entry can reach
+        entry, b = reachable_bins(enter, config.bin_s, config.interpolate, max_shift_s)
+        row, edge, agent = (n_i * K + k_i)[entry], e_i[entry], n_i[entry]
+        pos = enter[entry] / config.bin_s - b  # scheduled position relative to the bin (departures.py)
+        w = (np.maximum(1.0 - np.abs(pos + 0.5), 0.0) if config.interpolate
+             else ((pos >= -1.0) & (pos < 0.0)).astype(np.float64))
     n_bins = int(b.max()) + 1
     uniq, cell = np.unique(edge * n_bins + b, return_inverse=True)
     cell_edge = (uniq // n_bins).astype(np.int32)
@@ -226,7 +232,7 @@ def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
         queue=(build_queue_index(scn, config.entry_scale, config.bin_s, config.queue_passes,
                                  config.queue_spill, jcls) if config.model == "queue" else None),
         departs=(None if max_shift_s is None else build_depart_index(
-            scn, config.entry_scale, config.bin_s, config.interpolate, config.origin_window_s, max_shift_s)),
+            scn, agent[by_cell], pos[by_cell], agent[by_row], pos[by_row], config)),
     )
 
 

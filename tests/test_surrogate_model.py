@@ -141,7 +141,7 @@ def test_hand_computed_day_whose_departures_move(tmp_path):
     Its entries move one bin: every (edge, bin) then carries one vehicle,
       each: (300 + 100) * (1 + 0.15 * 1) + 2 * 1 (load 1) + 1 = 463 s;
     40 s late, agent 1 counts agent 0 in its 60-s insertion window and agent 0 does not count it."""
-    from urb_jax.surrogate.departures import day_cells
+    from urb_jax.surrogate.departures import day_weights
 
     scn = _tiny_scenario(tmp_path)
     static = build_static(scn, SurrogateConfig(bin_s=300.0, entry_scale=1.0), max_shift_s=300.0)
@@ -154,7 +154,7 @@ def test_hand_computed_day_whose_departures_move(tmp_path):
     np.testing.assert_allclose(scheduled, [[22.75, 22.75]], rtol=1e-5)
     late = np.asarray(predict_jit(params, static, both, jnp.array([0.0, 300.0])))
     np.testing.assert_allclose(late, [[463 / 60, 463 / 60]], rtol=1e-5)
-    load = np.asarray(day_cells(static.departs, jnp.array([0.0, 40.0]))[3])
+    load = np.asarray(day_weights(static.departs, jnp.array([0.0, 40.0]))[2])
     np.testing.assert_array_equal(load, [1.0, 2.0])
     with pytest.raises(ValueError, match="max_shift_s"):
         predict(params, build_static(scn, SurrogateConfig(bin_s=300.0)), both, jnp.zeros(2))
