@@ -50,7 +50,9 @@ def seed_to_seed_mape(scn, c_te: np.ndarray, kinds: list[str], te: SumoSample, w
 
 
 def network_rows(net: str, networks_dir: str | None, models: list[str], train_days: int, test_days: int,
-                 workers: int, seed_noise: bool = True) -> list[dict]:
+                 workers: int, seed_noise: bool = True, queue: SurrogateConfig | None = None
+                 ) -> list[dict]:
+    """`queue`: the queue model's options (spill-back, capacity start; `model` is each row's)."""
     scn = load_scenario(net, networks_dir=networks_dir)
     bpr = build_static(scn)
     c_tr, _ = make_choices(scn, bpr, init_params(bpr), train_days, seed=1)
@@ -61,7 +63,8 @@ def network_rows(net: str, networks_dir: str | None, models: list[str], train_da
     fitted_bpr = None
     for model in models:
         t0 = time.perf_counter()
-        static = bpr if model == "bpr" else build_static(scn, SurrogateConfig(model=model))
+        queue_config = replace(queue or SurrogateConfig(), model=model)
+        static = bpr if model == "bpr" else build_static(scn, queue_config)
         if model == "bpr" or fitted_bpr is None:
             params = calibrate(scn, tr, static=static, route_bias_prior_days=None)
         else:  # what `calibrate` does for the queue model, its BPR stage taken from the row above
@@ -128,17 +131,22 @@ def main() -> None:
     ap.add_argument("--no-seed-noise", action="store_true",
                     help="skip SUMO's seed-to-seed MAPE (two more SUMO days per network)")
     ap.add_argument("--out", default=None, help="write the table as a Markdown page here")
+    ap.add_argument("--no-queue-spill", action="store_true", help="the queue model without spill-back")
+    ap.add_argument("--queue-cap-start", type=float, default=SurrogateConfig.queue_cap_start,
+                    help="the queue model's service rates start at this share of marouter's capacity")
     args = ap.parse_args()
     models = [m for m in args.models.split(",") if m]
     print("| network | agents | model | mean error (worst day) | MAPE | R² | seed-to-seed | ratio | met |")
     rows = []
     for net in [n for n in args.nets.split(",") if n]:
+        queue = SurrogateConfig(queue_spill=not args.no_queue_spill, queue_cap_start=args.queue_cap_start)
         rows += network_rows(net, args.networks_dir, models, args.train_days, args.test_days, args.workers,
-                             not args.no_seed_noise)
+                             not args.no_seed_noise, queue)
     if args.out:
         command = (f"python benchmarks/surrogate_fidelity.py --networks-dir DIR --nets {args.nets} "
                    f"--models {args.models} --train-days {args.train_days} --test-days {args.test_days} "
-                   f"--out {args.out}")
+                   f"{'--no-queue-spill ' if args.no_queue_spill else ''}--queue-cap-start "
+                   f"{args.queue_cap_start} --out {args.out}")
         write_text(Path(args.out), page(rows, command, args.train_days, args.test_days))
 
 

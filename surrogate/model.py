@@ -51,6 +51,7 @@ class SurrogateConfig:
     model: str = "bpr"  # "bpr" (this module alone) or "queue" (plus surrogate/queue.py's point queues)
     queue_passes: int = 2  # queue model: passes that move entry times by the queues met upstream
     queue_spill: bool = True  # queue model: spill-back of queues beyond an edge's storage
+    queue_cap_start: float = 0.5  # queue model: service rates start at this share of marouter's capacity
 
 
 MODELS = ("bpr", "queue")
@@ -230,7 +231,8 @@ def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
         n=N, k=K, n_cells=len(uniq), n_edges=scn.n_edges, n_classes=int(cls.max()) + 1,
         power=config.bpr_power, chunk=config.chunk,
         queue=(build_queue_index(scn, config.entry_scale, config.bin_s, config.queue_passes,
-                                 config.queue_spill, jcls) if config.model == "queue" else None),
+                                 config.queue_spill, jcls, config.queue_cap_start)
+               if config.model == "queue" else None),
         departs=(None if max_shift_s is None else build_depart_index(
             scn, agent[by_cell], pos[by_cell], agent[by_row], pos[by_row], config)),
     )

@@ -50,7 +50,7 @@ JAM_SPACING_M = 7.5  # metres of lane per stored vehicle (SUMO's 5 m car + 2.5 m
         "q_row", "q_edge", "q_u", "q_first", "q_bin", "q_succ_bin_cell",
         "r_perm", "e_perm", "r_first", "edge_cap_s", "edge_storage", "edge_jclass",
     ],
-    meta_fields=["n_rows", "n_edges", "n_bins", "passes", "spill"],
+    meta_fields=["n_rows", "n_edges", "n_bins", "passes", "spill", "cap_start"],
 )
 @dataclass(frozen=True)
 class QueueIndex:
@@ -73,6 +73,7 @@ class QueueIndex:
     n_bins: int
     passes: int
     spill: bool
+    cap_start: float  # the service rates' start, a share of marouter's capacity
 
 
 def _succ_pairs(routes: np.ndarray) -> np.ndarray:
@@ -83,7 +84,7 @@ def _succ_pairs(routes: np.ndarray) -> np.ndarray:
 
 
 def build_queue_index(scn: Scenario, entry_scale: float, bin_s: float, passes: int,
-                      spill: bool, jclass: np.ndarray) -> QueueIndex:
+                      spill: bool, jclass: np.ndarray, cap_start: float = 0.5) -> QueueIndex:
     routes = scn.routes  # [N, K, L]
     N, K, _ = routes.shape
     t0 = (scn.edge_length / scn.edge_speed).astype(np.float64)
@@ -115,14 +116,15 @@ def build_queue_index(scn: Scenario, entry_scale: float, bin_s: float, passes: i
         edge_cap_s=f32(np.maximum(scn.edge_capacity.astype(np.float64), 1.0) / 3600.0),
         edge_storage=f32(np.maximum(storage, 1.0)), edge_jclass=i32(jclass),
         n_rows=N * K, n_edges=scn.n_edges, n_bins=n_bins, passes=passes, spill=spill,
+        cap_start=float(cap_start),
     )
 
 
 def init_queue_params(index: QueueIndex, n_jclasses: int) -> dict[str, jax.Array]:
-    """Capacity at half marouter's (where no queue forms, capacity has no gradient: start with some),
-    storage scale 1, spill-back share 0.5."""
+    """Capacity at `cap_start` of marouter's (default half: where no queue forms, capacity has no
+    gradient, so start with some), storage scale 1, spill-back share 0.5."""
     return {
-        "log_cap_j": jnp.full(n_jclasses, jnp.log(0.5)),  # half: queues to fit from (else no gradient)
+        "log_cap_j": jnp.full(n_jclasses, jnp.log(index.cap_start)),
         "log_cap_e": jnp.zeros(index.n_edges),
         "log_spill": jnp.log(jnp.array(0.5)),
         "log_storage": jnp.zeros(()),

@@ -157,3 +157,19 @@ def test_bpr_static_and_params_carry_no_queue(grid_scenario):
     static = build_static(grid_scenario)
     assert static.queue is None
     assert not {"log_cap_j", "log_cap_e", "log_spill", "log_storage"} & set(init_params(static))
+
+
+def test_the_service_rates_start_at_the_configured_share_of_capacity(tmp_path):
+    """Uncalibrated, the single bottleneck above serves at cap_start x 360 veh/h: at nominal capacity
+    (1.0) the hand-computed delays; at half (the default start) a vehicle every 20 s."""
+    from urb_jax.surrogate.queue import edge_capacity
+
+    scn = _scenario(tmp_path, [[0], [0]], [0, 1, 2, 3, 30], [100.0], [360.0])
+    for share, delays in ((1.0, [0, 9, 18, 27, 10]), (0.5, [0, 19, 38, 57, 50])):
+        static = build_static(scn, SurrogateConfig(model="queue", entry_scale=1.0, queue_passes=1,
+                                                   queue_spill=False, queue_cap_start=share))
+        start = init_params(static)
+        np.testing.assert_allclose(np.asarray(edge_capacity(start, static.queue)), [share * 0.1], rtol=1e-6)
+        params = {**_free_flow_params(static), "log_cap_j": start["log_cap_j"]}
+        out = np.asarray(predict_jit(params, static, jnp.zeros((1, 5), jnp.int32)))[0] * 60
+        np.testing.assert_allclose(out, 10.0 + np.array(delays), atol=1e-3)
