@@ -13,7 +13,15 @@ reach a few bins (4 at +-300 s in 300-s bins, against 2 when scheduled): this in
 their weights are computed in the program (`day_weights`), the triangular kernel of the shifted
 position. The layout stays batch-last with static, sorted indices, so a batch of days whose shifts
 differ (the training envs, vmapped) costs about twice a scheduled batch, not a scatter per day.
-With zero shifts it is the scheduled model: the same non-zero weights on the same cells.
+
+SUMO draws each vehicle's speedFactor from the seeded RNG as the vehicle is added, in insertion
+order (departure second, humans before CAVs, then agent order; sumo_bridge.tripinfo), so a factor
+belongs to an insertion slot, not to a driver: measured on St. Arnoult, a day with departures moved
+by up to 300 s gives 2% of the drivers their scheduled day's factor and 100% of the slots theirs.
+The model's per-agent factor g_n is fitted on scheduled days, where driver n holds slot s0(n); on
+a moved day it takes the factor of the slot it holds, g_{a(n)}, a(n) the driver whose scheduled
+slot that is (`slot_agents`). With zero shifts it is the scheduled model: the same non-zero weights
+on the same cells, every driver in its own slot.
 """
 
 from __future__ import annotations
@@ -34,7 +42,8 @@ if TYPE_CHECKING:  # model.py imports this module
 
 @partial(
     jax.tree_util.register_dataclass,
-    data_fields=["flow_agent", "flow_pos", "time_agent", "time_pos", "depart", "pair_agent", "pair_other"],
+    data_fields=["flow_agent", "flow_pos", "time_agent", "time_pos", "depart", "pair_agent", "pair_other",
+                 "slot_tiebreak", "slot_agent"],
     meta_fields=["bin_s", "interpolate", "origin_window_s"],
 )
 @dataclass(frozen=True)
@@ -49,6 +58,8 @@ class DepartIndex:
     depart: jax.Array  # [N] scheduled departures, s
     pair_agent: jax.Array  # [Q] same-origin pairs (n, m), n's own pair included: n's insertion
     pair_other: jax.Array  # [Q]     load counts m when m leaves in (d_n - w, d_n]
+    slot_tiebreak: jax.Array  # [N] is_cav_n * N + n: insertion order within a second
+    slot_agent: jax.Array  # [N] the driver in each insertion slot on the scheduled day
     bin_s: float
     interpolate: bool
     origin_window_s: float
@@ -71,17 +82,23 @@ def reachable_bins(enter: np.ndarray, bin_s: float, interpolate: bool, max_shift
 
 
 def build_depart_index(scn: Scenario, flow_agent: np.ndarray, flow_pos: np.ndarray, time_agent: np.ndarray,
-                       time_pos: np.ndarray, config: SurrogateConfig) -> DepartIndex:
+                       time_pos: np.ndarray, config: SurrogateConfig, is_cav: np.ndarray | None
+                       ) -> DepartIndex:
     """The index of the pairs `build_static` laid out: their agents and positions in cell order and
-    in row order, and the same-origin pairs of `scn`'s drivers."""
+    in row order, the same-origin pairs of `scn`'s drivers and their insertion slots (`is_cav` [N]:
+    CAVs are added after the humans of their second; None: no CAV)."""
     origin = scn.od_routes[scn.agent_od, 0, 0]
     groups = [np.flatnonzero(origin == o) for o in np.unique(origin)]
     pair = np.concatenate([np.stack([np.repeat(g, g.size), np.tile(g, g.size)], axis=1) for g in groups])
+    n = scn.n_agents
+    cav = np.zeros(n, bool) if is_cav is None else np.asarray(is_cav, bool)
+    tiebreak = cav.astype(np.int64) * n + np.arange(n)
     i32, f32 = partial(jnp.asarray, dtype=jnp.int32), partial(jnp.asarray, dtype=jnp.float32)
     return DepartIndex(
         flow_agent=i32(flow_agent), flow_pos=f32(flow_pos),
         time_agent=i32(time_agent), time_pos=f32(time_pos),
         depart=f32(scn.agent_depart), pair_agent=i32(pair[:, 0]), pair_other=i32(pair[:, 1]),
+        slot_tiebreak=i32(tiebreak), slot_agent=i32(np.argsort(scn.agent_depart * 2 * n + tiebreak)),
         bin_s=float(config.bin_s), interpolate=bool(config.interpolate),
         origin_window_s=float(config.origin_window_s),
     )
@@ -103,3 +120,12 @@ def day_weights(index: DepartIndex, shift: jax.Array) -> tuple[jax.Array, jax.Ar
     within = (d_m > d_n - index.origin_window_s) & (d_m <= d_n)
     load = jax.ops.segment_sum(within.astype(jnp.float32), index.pair_agent, depart.shape[0])
     return weight(index.flow_agent, index.flow_pos), weight(index.time_agent, index.time_pos), load
+
+
+def slot_agents(index: DepartIndex, shift: jax.Array) -> jax.Array:
+    """[N] for each driver on a day moved by `shift` [N]: the driver that held its insertion slot on
+    the scheduled day (whose fitted speed factor is the slot's). The identity when nothing moves."""
+    n = index.depart.shape[0]
+    depart = jnp.round(index.depart + shift).astype(jnp.int32)  # whole seconds
+    slot = jnp.argsort(jnp.argsort(depart * (2 * n) + index.slot_tiebreak))  # [N] each driver's slot
+    return index.slot_agent[slot]

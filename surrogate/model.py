@@ -31,7 +31,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from urb_jax.city.scenario import Scenario
-from urb_jax.surrogate.departures import DepartIndex, build_depart_index, day_weights, reachable_bins
+from urb_jax.surrogate.departures import (
+    DepartIndex,
+    build_depart_index,
+    day_weights,
+    reachable_bins,
+    slot_agents,
+)
 from urb_jax.surrogate.queue import QueueIndex, build_queue_index, init_queue_params, queue_route_delays
 
 # Junction classes for the junction/signal delay term (the edge's downstream junction).
@@ -179,10 +185,11 @@ def _origin_load(scn: Scenario, window: float) -> np.ndarray:
 
 
 def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
-                 max_shift_s: float | None = None) -> Static:
+                 max_shift_s: float | None = None, is_cav: np.ndarray | None = None) -> Static:
     """Precompute the (agent, route, edge, bin) entries, the compact cells and the edge features;
     `max_shift_s` set: an entry in every bin it reaches when its driver leaves up to that many
-    seconds off schedule (zero-weighted when scheduled), for `predict(..., shift=)`."""
+    seconds off schedule (zero-weighted when scheduled), for `predict(..., shift=)`; `is_cav` [N]
+    (None: none) orders their insertion slots as SUMO's (surrogate/departures.py)."""
     if config.model not in MODELS:
         raise ValueError(f"surrogate model {config.model!r} is not one of {', '.join(MODELS)}")
     routes = scn.routes  # [N, K, L]
@@ -234,7 +241,7 @@ def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
                                  config.queue_spill, jcls, config.queue_cap_start)
                if config.model == "queue" else None),
         departs=(None if max_shift_s is None else build_depart_index(
-            scn, agent[by_cell], pos[by_cell], agent[by_row], pos[by_row], config)),
+            scn, agent[by_cell], pos[by_cell], agent[by_row], pos[by_row], config, is_cav)),
     )
 
 
@@ -367,7 +374,11 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array,
         sec = jnp.moveaxis(out, 0, 1).reshape(static.n, -1)[:, :B]
     ins = jnp.exp(params["log_ins"]) * lay.origin_load[:, None]
     if static.queue is None:
-        sec = sec * jnp.exp(params["log_agent"])[:, None] + ins + params["intercept"]
+        g = jnp.exp(params["log_agent"])  # [N]
+        if shift is not None:  # a moved day: each driver drives at its insertion slot's factor
+            assert static.departs is not None  # day_layout refused otherwise
+            g = g[slot_agents(static.departs, shift)]
+        sec = sec * g[:, None] + ins + params["intercept"]
     else:  # the per-agent factor is already on the BPR part only
         sec = sec + ins + params["intercept"]
     out = sec.T / 60.0

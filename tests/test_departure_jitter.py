@@ -87,6 +87,46 @@ def test_the_model_day_gets_its_days_shifts_in_the_program(grid_scenario):
         env.travel_times(None, env.joint_actions(state, actions))
 
 
+def test_a_moved_drivers_speed_factor_is_its_insertion_slots(grid_scenario, monkeypatch):
+    """SUMO draws a vehicle's speedFactor as it is added, in insertion order: on a moved day driver n
+    drives at the factor of the slot it holds, which the model reads from the driver that held the
+    slot on the scheduled day (`slot_agents`), CAVs added after the humans of their second."""
+    import libsumo
+
+    from urb_jax.sumo_bridge.sim import Simulator
+    from urb_jax.surrogate.departures import slot_agents
+
+    factors: dict[str, float] = {}
+    add = libsumo.vehicle.add
+
+    def add_and_read(vid, *args, **kwargs):
+        add(vid, *args, **kwargs)
+        factors[vid] = libsumo.vehicle.getSpeedFactor(vid)
+
+    monkeypatch.setattr(libsumo.vehicle, "add", add_and_read)
+    scn = grid_scenario
+    is_cav = draw_cavs(0, scn.n_agents, 0.4)
+    moved = DepartureJitter(seed=7, jitter_s=120).scenario_on(scn, 3)
+    choice = np.zeros(scn.n_agents, np.int64)
+    sim = Simulator()
+    try:
+        days = []
+        for s in (scn, moved):
+            factors.clear()
+            sim.run_day(s, choice, seed=42, is_cav=is_cav)
+            days.append(np.array([factors[str(int(a))] for a in scn.agent_id]))
+    finally:
+        sim.close()
+    scheduled, on_moved = days
+    assert np.mean(np.isclose(on_moved, scheduled)) < 0.5  # the factors did not stay with the drivers
+    static = build_static(scn, SurrogateConfig(), max_shift_s=120.0, is_cav=is_cav)
+    shift = jnp.asarray(moved.agent_depart - scn.agent_depart, jnp.float32)
+    holder = np.asarray(slot_agents(static.departs, shift))
+    np.testing.assert_allclose(on_moved, scheduled[holder])
+    np.testing.assert_array_equal(np.asarray(slot_agents(static.departs, jnp.zeros(scn.n_agents))),
+                                  np.arange(scn.n_agents))
+
+
 def test_a_sample_of_moved_days_is_fitted_with_its_shifts(grid_scenario):
     """SUMO days whose departures moved carry their shifts (scheduled days: zeros when mixed); the
     calibration loss predicts each day with its own shifts: days made by the model under their

@@ -224,7 +224,7 @@ def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: in
     of the right shapes (a resume's checkpoint, or a dry run, replaces it)."""
     is_cav = draw_cavs(env_seed, scn.n_agents, task.ratio_machines, agent_id=scn.agent_id)
     max_shift = float(task.day_departure_jitter_s) if task.jitters_departures else None
-    static = build_static(scn, cfg.surrogate_config, max_shift)  # moving departures: their entries too
+    static = build_static(scn, cfg.surrogate_config, max_shift, is_cav)  # moving departures: entries, slots
     env_kwargs = routing_env_kwargs(task, env_cfg, env_seed, is_cav)
     if humans is None:
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid),
