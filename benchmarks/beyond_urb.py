@@ -138,7 +138,8 @@ VARIATIONS = (
         "With the task key `day_departure_jitter_s` J = 300 every driver leaves on a day after mutation at "
         "its scheduled second plus a uniform offset in [−300, 300] s (St. Arnoult's departures span 30 min), "
         "drawn from the env seed and the day; SUMO days run the day's departures and the travel time counts "
-        "from them, the surrogate's days of the same index move by the same draw, and CAVs observe their "
+        "from them, the surrogate's days of the same index move by the same draw (entry times, insertion "
+        "load, and SUMO's speed factors, which belong to insertion slots), and CAVs observe their "
         "scheduled departure "
         '(docs/experiment.md, "Departures that vary day to day"). Task config `departure_jitter_40`: '
         "config1 with J = 300.",
