@@ -122,10 +122,17 @@ def day_weights(index: DepartIndex, shift: jax.Array) -> tuple[jax.Array, jax.Ar
     return weight(index.flow_agent, index.flow_pos), weight(index.time_agent, index.time_pos), load
 
 
-def slot_agents(index: DepartIndex, shift: jax.Array) -> jax.Array:
-    """[N] for each driver on a day moved by `shift` [N]: the driver that held its insertion slot on
-    the scheduled day (whose fitted speed factor is the slot's). The identity when nothing moves."""
+def slot_agents(index: DepartIndex, shift: jax.Array, present: jax.Array | None = None) -> jax.Array:
+    """[N] (or [N, B] for `present` [N, B]) for each driver on a day moved by `shift` [N] on which
+    only `present` drivers travel (None: all): the driver that held its insertion slot on the
+    scheduled day with everyone (whose fitted speed factor is the slot's). Absent drivers are added
+    after everyone (no vehicle: their entry is unused). The identity when nothing moves."""
     n = index.depart.shape[0]
     depart = jnp.round(index.depart + shift).astype(jnp.int32)  # whole seconds
-    slot = jnp.argsort(jnp.argsort(depart * (2 * n) + index.slot_tiebreak))  # [N] each driver's slot
-    return index.slot_agent[slot]
+    key = depart * (2 * n) + index.slot_tiebreak  # [N] SUMO's insertion order
+    if present is None:
+        return index.slot_agent[jnp.argsort(jnp.argsort(key))]
+    late = jnp.int32(2**30) + index.slot_tiebreak  # after every present driver
+    tail = (1,) * (present.ndim - 1)  # the batch axis of `present`, if any
+    keys = jnp.where(present, key.reshape(n, *tail), late.reshape(n, *tail))
+    return index.slot_agent[jnp.argsort(jnp.argsort(keys, axis=0), axis=0)]

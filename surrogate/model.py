@@ -355,6 +355,7 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array,
     x = jnp.moveaxis(choices, 0, -1)  # batch last
     if not is_prob:
         x = x.astype(jnp.int32)
+    present = None if is_prob else x >= 0  # [N, B] who travels (ABSENT: -1; SUMO's insertion slots)
     size = static.chunk
 
     def day_chunk(c: jax.Array) -> jax.Array:
@@ -377,8 +378,8 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array,
         g = jnp.exp(params["log_agent"])  # [N]
         if shift is not None:  # a moved day: each driver drives at its insertion slot's factor
             assert static.departs is not None  # day_layout refused otherwise
-            g = g[slot_agents(static.departs, shift)]
-        sec = sec * g[:, None] + ins + params["intercept"]
+            g = g[slot_agents(static.departs, shift, present)]  # [N] or [N, B]
+        sec = sec * (g[:, None] if g.ndim == 1 else g) + ins + params["intercept"]
     else:  # the per-agent factor is already on the BPR part only
         sec = sec + ins + params["intercept"]
     out = sec.T / 60.0

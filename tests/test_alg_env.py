@@ -36,10 +36,11 @@ def tiny_scenario() -> Scenario:
 
 
 def fft_plus_half_flow(scn: Scenario):
-    """time = route free-flow time + 0.5 * (agents on the same route)."""
+    """time = route free-flow time + 0.5 * (agents on the same route); a day's departure shifts (an
+    env whose demand varies passes them) do not matter to it."""
     fft = jnp.asarray(scn.fft, jnp.float32)
 
-    def tt(choices):
+    def tt(choices, shift=None):
         flow = jnp.zeros(scn.k).at[choices].add(1.0)
         return fft[jnp.arange(scn.n_agents), choices] + 0.5 * flow[choices]
 

@@ -16,6 +16,7 @@ import pytest
 from support.fakeday import FakeExecutor
 from support.tiny_runs import train_iql
 
+from urb_jax.city.demand import ABSENT
 from urb_jax.core.errors import ConfigError
 from urb_jax.game.config import TaskConfig
 from urb_jax.game.demand import DepartureJitter, jittered_departures
@@ -108,23 +109,27 @@ def test_a_moved_drivers_speed_factor_is_its_insertion_slots(grid_scenario, monk
     is_cav = draw_cavs(0, scn.n_agents, 0.4)
     moved = DepartureJitter(seed=7, jitter_s=120).scenario_on(scn, 3)
     choice = np.zeros(scn.n_agents, np.int64)
+    home = np.random.default_rng(0).random(scn.n_agents) < 0.2  # a day some drivers stay home
     sim = Simulator()
     try:
         days = []
-        for s in (scn, moved):
+        for s, c in ((scn, choice), (moved, choice), (scn, np.where(home, ABSENT, choice))):
             factors.clear()
-            sim.run_day(s, choice, seed=42, is_cav=is_cav)
-            days.append(np.array([factors[str(int(a))] for a in scn.agent_id]))
+            sim.run_day(s, c, seed=42, is_cav=is_cav)
+            days.append(np.array([factors.get(str(int(a)), np.nan) for a in scn.agent_id]))
     finally:
         sim.close()
-    scheduled, on_moved = days
+    scheduled, on_moved, on_fewer = days
     assert np.mean(np.isclose(on_moved, scheduled)) < 0.5  # the factors did not stay with the drivers
     static = build_static(scn, SurrogateConfig(), max_shift_s=120.0, is_cav=is_cav)
     shift = jnp.asarray(moved.agent_depart - scn.agent_depart, jnp.float32)
     holder = np.asarray(slot_agents(static.departs, shift))
     np.testing.assert_allclose(on_moved, scheduled[holder])
-    np.testing.assert_array_equal(np.asarray(slot_agents(static.departs, jnp.zeros(scn.n_agents))),
-                                  np.arange(scn.n_agents))
+    zero = jnp.zeros(scn.n_agents)
+    np.testing.assert_array_equal(np.asarray(slot_agents(static.departs, zero)), np.arange(scn.n_agents))
+    holder = np.asarray(slot_agents(static.departs, zero, jnp.asarray(~home)))
+    assert np.isnan(on_fewer[home]).all() and np.mean(np.isclose(on_fewer[~home], scheduled[~home])) < 0.5
+    np.testing.assert_allclose(on_fewer[~home], scheduled[holder[~home]])
 
 
 def test_a_sample_of_moved_days_is_fitted_with_its_shifts(grid_scenario):
@@ -201,7 +206,7 @@ def test_a_runs_days_after_mutation_leave_at_their_days_seconds(tiny_iql_confs, 
 def test_runs_that_cannot_honour_jitter_refuse_it():
     task, path = TaskConfig(day_departure_jitter_s=60), Path("task.json")
     check_departure_jitter(task, path, train=True)
-    with pytest.raises(ConfigError, match="queue surrogate.*surrogate_model"):
+    with pytest.raises(ConfigError, match=r"queue surrogate.*surrogate_model"):
         check_departure_jitter(task, path, train=True, surrogate_model="queue")
     check_departure_jitter(task, path, train=False, baseline="aon")
     with pytest.raises(ConfigError, match=r"task.json: key 'day_departure_jitter_s' = 60.*the 'human'"):

@@ -150,7 +150,8 @@ def test_hand_computed_day_whose_departures_move(tmp_path):
               "log_ins": jnp.log(jnp.array(2.0)), "intercept": jnp.array(1.0)}
     both = jnp.array([[0, 0]])
     scheduled = np.asarray(predict_jit(params, static, both))
-    np.testing.assert_allclose(np.asarray(predict_jit(params, static, both, jnp.zeros(2))), scheduled, rtol=1e-6)
+    unmoved = np.asarray(predict_jit(params, static, both, jnp.zeros(2)))
+    np.testing.assert_allclose(unmoved, scheduled, rtol=1e-6)
     np.testing.assert_allclose(scheduled, [[22.75, 22.75]], rtol=1e-5)
     late = np.asarray(predict_jit(params, static, both, jnp.array([0.0, 300.0])))
     np.testing.assert_allclose(late, [[463 / 60, 463 / 60]], rtol=1e-5)
@@ -171,7 +172,8 @@ def test_moving_departures_keep_the_scheduled_model_and_its_gradients(grid_scena
     base = np.asarray(predict_jit(params, static, ch))
     n = scn.n_agents
     np.testing.assert_allclose(np.asarray(predict_jit(params, static, ch, jnp.zeros(n))), base, rtol=2e-5)
-    np.testing.assert_allclose(np.asarray(predict_jit(params, static, ch, jnp.full(n, 300.0))), base, rtol=2e-5)
+    one_bin_later = np.asarray(predict_jit(params, static, ch, jnp.full(n, 300.0)))
+    np.testing.assert_allclose(one_bin_later, base, rtol=2e-5)
     rng = np.random.default_rng(5)
     shift = jnp.asarray(rng.integers(0, 301, n), jnp.float32)
     moved = np.asarray(predict_jit(params, static, ch, shift))
@@ -179,3 +181,31 @@ def test_moving_departures_keep_the_scheduled_model_and_its_gradients(grid_scena
     logits = jnp.asarray(rng.normal(size=(n, scn.k)).astype(np.float32))
     g = jax.grad(lambda lg: predict(params, static, jax.nn.softmax(lg, -1), shift).sum())(logits)
     assert np.isfinite(np.asarray(g)).all() and np.abs(np.asarray(g)).max() > 0
+
+
+def test_a_day_with_drivers_at_home_gives_the_others_their_slots_factors(grid_scenario):
+    """On a day some drivers stay home (ABSENT), the others move up in SUMO's insertion order: each
+    present driver's time is the per-driver model's with the factor of the driver whose scheduled
+    slot it now holds; with everyone present it is the per-driver model itself."""
+    from urb_jax.city.demand import ABSENT
+    from urb_jax.surrogate.departures import slot_agents
+
+    scn = grid_scenario
+    static = build_static(scn, SurrogateConfig(chunk=32), max_shift_s=0.0)
+    rng = np.random.default_rng(6)
+    params = init_params(static)
+    params = {**params, "log_agent": jnp.asarray(rng.normal(0, 0.1, scn.n_agents), jnp.float32)}
+    n = scn.n_agents
+    ch = _choices(scn, 3, seed=7)
+    home = rng.random((3, n)) < 0.2
+    days = jnp.asarray(np.where(home, ABSENT, ch))
+    zero = jnp.zeros(n)
+    np.testing.assert_allclose(np.asarray(predict_jit(params, static, jnp.asarray(ch), zero)),
+                               np.asarray(predict_jit(params, static, jnp.asarray(ch))), rtol=1e-6)
+    got = np.asarray(predict_jit(params, static, days, zero))
+    for d in range(3):
+        holder = np.asarray(slot_agents(static.departs, zero, jnp.asarray(~home[d])))
+        assert (holder[~home[d]] != np.flatnonzero(~home[d])).any()  # someone moved up
+        by_driver = {**params, "log_agent": params["log_agent"][holder]}
+        want = np.asarray(predict_jit(by_driver, static, days[d]))
+        np.testing.assert_allclose(got[d][~home[d]], want[~home[d]], rtol=1e-5)

@@ -6,7 +6,7 @@ or anything else) or are measured outside (SUMO: `step_with_times`); CAV rewards
 behaviour (`urb_jax.game.rewards`). Parameters of `travel_time_fn` are explicit, gymnax-style:
 `step(key, state, actions, params)`, so a refitted surrogate swaps in without recompiling; an
 env with `default_params` calls `travel_time_fn(params, choices)`, one without `travel_time_fn(choices)`;
-where departures move day to day (`depart_jitter`) the day's departure shifts [N] come last.
+where departures or demand vary day to day the day's departure shifts [N] come last.
 
 Departure order (AEC semantics): a CAV observes the choices of agents that departed earlier
 today. Humans' choices for a day are drawn when the previous day ends (stored in the state), so
@@ -43,7 +43,7 @@ from urb_jax.game.rewards import (
 # Parameters of travel_time_fn (a pytree, e.g. the surrogate's); None for a parameter-free model.
 EnvParams = Any
 # travel_time_fn(choices[N]) -> minutes [N], or travel_time_fn(params, choices[N]) with default_params;
-# with depart_jitter also the day's departure shifts: travel_time_fn(params, choices[N], shift[N]).
+# with depart_jitter or day_demand also the day's departure shifts: travel_time_fn(params, choices, shift).
 TravelTimeFn = Callable[..., jnp.ndarray]
 StepResult = tuple[jnp.ndarray, "EnvState", jnp.ndarray, jnp.ndarray, dict[str, jnp.ndarray]]
 Margins = tuple[jnp.ndarray, jnp.ndarray]  # (externalities [3, N], model times [N]): rewards.externalities
@@ -85,13 +85,26 @@ class RoutingEnv:
     marginal_cost_beta: float = 0.0
     # Demand that varies day to day (game.demand): who travels on day `state.day`; None: everyone
     day_demand: DayDemand | None = None
-    # Departures that vary day to day (game.demand): SUMO's day `state.day` runs `sumo_scenario(day)`,
-    # and travel_time_fn takes that day's departure shifts [N] as a last argument; None: as scheduled
+    # Departures that vary day to day (game.demand): SUMO's day `state.day` runs `sumo_scenario(day)`;
+    # None: as scheduled. Where departures or demand vary (`varies_insertion`), travel_time_fn takes
+    # the day's departure shifts [N] (zeros without jitter) as a last argument
     depart_jitter: DepartureJitter | None = None
     # Competing fleets (game.mutation.split_fleets): [N] each agent's fleet, -1 for a human, and each
     # fleet's reward coefficients; None: one fleet, paid `reward_coefficients`
     cav_fleet: np.ndarray | None = None
     fleet_coefficients: tuple[tuple[float, float, float, float], ...] | None = None
+
+    @property
+    def varies_insertion(self) -> bool:
+        """SUMO's insertion order changes day to day (departures or who travels), and with it the
+        speed factor each driver gets: travel_time_fn is told the day's departures."""
+        return self.depart_jitter is not None or self.day_demand is not None
+
+    def day_shifts(self, day: jax.Array | int) -> jax.Array:
+        """[N] seconds each driver leaves off its schedule on day `day` (zeros without jitter)."""
+        if self.depart_jitter is None:
+            return jnp.zeros(self.n_agents, jnp.float32)
+        return self.depart_jitter.shift(day, self.scenario.agent_depart)
 
     @property
     def uses_model(self) -> bool:
@@ -199,17 +212,17 @@ class RoutingEnv:
     def travel_times(self, params: EnvParams, choices: jnp.ndarray, day: jax.Array | int | None = None
                      ) -> jnp.ndarray:
         """[N] minutes of `choices` [N] from travel_time_fn (params None: default_params) on day
-        index `day` (`state.day`; needed where departures move: the fn gets that day's shifts)."""
+        index `day` (`state.day`; needed where departures or demand vary: the fn gets the day's shifts)."""
         if self.travel_time_fn is None:
             raise TypeError("this env has no travel_time_fn: its days are simulated outside "
                             "(use step_with_times)")
         args = (choices,) if self.default_params is None else (
             self.default_params if params is None else params, choices)
-        if self.depart_jitter is None:
+        if not self.varies_insertion:
             return self.travel_time_fn(*args)
         if day is None:
-            raise ValueError("departures move day to day (depart_jitter): travel_times needs the day index")
-        return self.travel_time_fn(*args, self.depart_jitter.shift(day, self.scenario.agent_depart))
+            raise ValueError("departures or demand vary day to day: travel_times needs the day index")
+        return self.travel_time_fn(*args, self.day_shifts(day))
 
     def step(self, key: jax.Array, state: EnvState, cav_actions: jnp.ndarray,
              params: EnvParams = None) -> StepResult:

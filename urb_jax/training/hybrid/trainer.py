@@ -124,6 +124,7 @@ class Group:
     memory_note: str  # the learner's memory against what is available (printed with the probe's estimate)
     seed_map: bool  # the learner's pieces go over the seeds by lax.map, not vmap (fns.maps_seeds)
     depart_jitter: DepartureJitter | None  # departures varying day to day (RoutingEnv.depart_jitter)
+    varies_insertion: bool  # departures or demand vary: SUMO days are kept with their shifts
 
     @property
     def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
@@ -183,7 +184,7 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
                  task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
                  np.flatnonzero(is_cav), static, p0,
                  plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock, probe,
-                 memory_note, seed_map, env.depart_jitter)
+                 memory_note, seed_map, env.depart_jitter, env.varies_insertion)
 
 
 def _plan(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, mode: str) -> RoundPlan:
@@ -223,8 +224,10 @@ def _group_env(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, env_seed: in
     """(is_cav [N], static, env kwargs, the surrogate env, uncalibrated). `humans` None: a placeholder
     of the right shapes (a resume's checkpoint, or a dry run, replaces it)."""
     is_cav = draw_cavs(env_seed, scn.n_agents, task.ratio_machines, agent_id=scn.agent_id)
-    max_shift = float(task.day_departure_jitter_s) if task.jitters_departures else None
-    static = build_static(scn, cfg.surrogate_config, max_shift, is_cav)  # moving departures: entries, slots
+    # departures or demand that vary: the entries the shifts reach and SUMO's insertion slots
+    varies = task.jitters_departures or task.varies_daily
+    static = build_static(scn, cfg.surrogate_config, float(task.day_departure_jitter_s) if varies else None,
+                          is_cav)
     env_kwargs = routing_env_kwargs(task, env_cfg, env_seed, is_cav)
     if humans is None:
         humans = init_humans(jax.random.PRNGKey(0), jnp.asarray(scn.fft), jnp.asarray(scn.route_valid),
@@ -372,12 +375,12 @@ class HybridTrainer:
         state, self.samples, meta = restore_round(self.g.folders[0], shapes, self.g.seeds, rounds_done)
         self.state = TrainState(**state)
         self.rounds_logs, self.sumo_done = meta.rounds, meta.sumo_days
-        if (self.g.depart_jitter is not None and self.g.mode == "hybrid" and self.sumo_done
+        if (self.g.varies_insertion and self.g.mode == "hybrid" and self.sumo_done
                 and any(sample.shift is None for sample in self.samples)):
             raise UrbJaxError(f"{self.g.folders[0]}: its checkpoint's SUMO days have no departure shifts (a "
-                              "version whose surrogate kept the scheduled departures), so its refits cannot "
-                              "go on. Fix: resume with the version of urb-jax that started the run, or start "
-                              "it again with --overwrite.")
+                              "version whose surrogate kept the scheduled insertion order), so its refits "
+                              "cannot go on. Fix: resume with the version of urb-jax that started the run, "
+                              "or start it again with --overwrite.")
         self.set_params()
         return meta
 
@@ -482,11 +485,13 @@ class HybridTrainer:
 
     def day_shifts(self, day_index: np.ndarray) -> np.ndarray | None:
         """[..., N] seconds each driver left off its schedule on the days of index `day_index` [...]
-        (None: departures as scheduled every day)."""
+        (None: departures as scheduled and everyone travelling, every day)."""
         g = self.g
-        if g.depart_jitter is None:
+        if not g.varies_insertion:
             return None
         sched = g.scn.agent_depart
+        if g.depart_jitter is None:  # demand varies: the drivers who travel leave as scheduled
+            return np.zeros((*day_index.shape, len(sched)), np.float32)
         flat = [g.depart_jitter.departures(int(d), sched) - sched for d in day_index.reshape(-1)]
         return np.stack(flat).astype(np.float32).reshape(*day_index.shape, len(sched))
 
