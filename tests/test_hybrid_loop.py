@@ -225,6 +225,20 @@ def test_sumo_row_under_full_autonomy_has_no_human_mean():
     assert mixed["sumo_time_cav"] == pytest.approx(3.0)
 
 
+def test_sumo_row_counts_only_the_drivers_who_travelled():
+    """Varying demand: a driver at home has a NaN SUMO time; the SUMO means and the surrogate's
+    errors count the drivers who travelled (hand-computed)."""
+    from urb_jax.training.hybrid.trainer import sumo_row
+
+    t = np.array([[3.0, np.nan, 5.0], [2.0, 4.0, np.nan]])  # [P, N]; one driver at home each day
+    pred = np.array([[3.3, 99.0, 4.5], [2.0, 5.0, 99.0]])
+    row = sumo_row(t, pred, 2, 0.5, np.array([True, False, False]), np.array([0]))
+    assert row["sumo_time_cav"] == pytest.approx(2.5) and row["sumo_time_hdv"] == pytest.approx(4.5)
+    assert row["surrogate_mape"] == pytest.approx((0.1 + 0.1 + 0.0 + 0.25) / 4)
+    # day means: (3.9 vs 4.0) and (3.5 vs 3.0); over the mean of every time counted, 3.5
+    assert row["surrogate_mean_error"] == pytest.approx(((3.9 - 4.0) + (3.5 - 3.0)) / 2 / 3.5)
+
+
 def test_the_dry_run_states_the_budget_the_run_trains(tiny_iql_reference, confs, tmp_path):
     """The dry run's budget line gives the training days the run then records, and the days asked
     (the tiny run's budget is whole rounds: "as asked")."""

@@ -784,7 +784,15 @@ def record_days(writer: RecordsWriter, first_day_minus1: int, phase: str, choice
 
 def sumo_row(t: np.ndarray, pred: np.ndarray, P: int, dt: float, is_cav: np.ndarray,
              cav_index: np.ndarray) -> Row:
-    """A seed's rounds.csv SUMO columns from its SUMO times t and the surrogate's prediction pred [P, N]."""
+    """A seed's rounds.csv SUMO columns from its SUMO times t and the surrogate's prediction pred [P, N];
+    where demand varies, over the drivers who travelled (t is NaN for those at home)."""
+    if np.isnan(t).any():  # drivers at home: their times are NaN, their predictions meaningless
+        pred_went = np.where(np.isnan(t), np.nan, pred)
+        day_error = np.nanmean(pred_went, 1) - np.nanmean(t, 1)  # [P]
+        return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": _group_mean(t[:, cav_index], np.nanmean),
+                "sumo_time_hdv": _group_mean(t[:, ~is_cav], np.nanmean),
+                "surrogate_mean_error": float(day_error.mean() / np.nanmean(t)),
+                "surrogate_mape": float(np.nanmean(np.abs(pred_went - t) / t))}
     return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": _group_mean(t[:, cav_index]),
             "sumo_time_hdv": _group_mean(t[:, ~is_cav]),
             "surrogate_mean_error": float((pred.mean(1) - t.mean(1)).mean() / t.mean()),
