@@ -125,7 +125,8 @@ VARIATIONS = (
         "p = 0.9",
         "With the task key `day_participation` p = 0.9 every driver, CAV or human, travels on a day after "
         "mutation with probability 0.9, drawn from the env seed, the same draw on surrogate and SUMO days; a "
-        'driver at home has no vehicle, is not observed and does not learn (docs/experiment.md, "Demand that '
+        "driver at home has no vehicle, is not observed and does not learn, and those who travel take the "
+        "SUMO speed factors of the insertion slots they hold that day (docs/experiment.md, \"Demand that "
         'varies day to day"). Task config `varying_demand_40`: config1 with p = 0.9; under p < 1 each IQL\\* '
         "CAV stores and learns from only the days it travelled.",
         "vd_saint_arnoult_iql_star",
