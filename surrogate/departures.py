@@ -18,10 +18,12 @@ SUMO draws each vehicle's speedFactor from the seeded RNG as the vehicle is adde
 order (departure second, humans before CAVs, then agent order; sumo_bridge.tripinfo), so a factor
 belongs to an insertion slot, not to a driver: measured on St. Arnoult, a day with departures moved
 by up to 300 s gives 2% of the drivers their scheduled day's factor and 100% of the slots theirs.
-The model's per-agent factor g_n is fitted on scheduled days, where driver n holds slot s0(n); on
-a moved day it takes the factor of the slot it holds, g_{a(n)}, a(n) the driver whose scheduled
-slot that is (`slot_agents`). With zero shifts it is the scheduled model: the same non-zero weights
-on the same cells, every driver in its own slot.
+The model's per-agent factor g_n is first fitted on the human phase's days (scheduled, no CAV),
+where driver n holds slot s0(n); on any later day it takes the factor of the slot it holds, g_{a(n)},
+a(n) the driver whose slot that was in the human phase (`slot_agents`); mutation alone moves a CAV
+behind the humans leaving in its second (6 of St. Arnoult's 222 drivers change slot, 121 of
+Ingolstadt's 1,035). With zero shifts and no CAV it is the scheduled model: the same non-zero
+weights on the same cells, every driver in its own slot.
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ class DepartIndex:
     pair_agent: jax.Array  # [Q] same-origin pairs (n, m), n's own pair included: n's insertion
     pair_other: jax.Array  # [Q]     load counts m when m leaves in (d_n - w, d_n]
     slot_tiebreak: jax.Array  # [N] is_cav_n * N + n: insertion order within a second
-    slot_agent: jax.Array  # [N] the driver in each insertion slot on the scheduled day
+    slot_agent: jax.Array  # [N] the driver in each insertion slot in the human phase (no CAV)
     bin_s: float
     interpolate: bool
     origin_window_s: float
@@ -98,7 +100,7 @@ def build_depart_index(scn: Scenario, flow_agent: np.ndarray, flow_pos: np.ndarr
         flow_agent=i32(flow_agent), flow_pos=f32(flow_pos),
         time_agent=i32(time_agent), time_pos=f32(time_pos),
         depart=f32(scn.agent_depart), pair_agent=i32(pair[:, 0]), pair_other=i32(pair[:, 1]),
-        slot_tiebreak=i32(tiebreak), slot_agent=i32(np.argsort(scn.agent_depart * 2 * n + tiebreak)),
+        slot_tiebreak=i32(tiebreak), slot_agent=i32(np.argsort(scn.agent_depart * 2 * n + np.arange(n))),
         bin_s=float(config.bin_s), interpolate=bool(config.interpolate),
         origin_window_s=float(config.origin_window_s),
     )
@@ -124,9 +126,10 @@ def day_weights(index: DepartIndex, shift: jax.Array) -> tuple[jax.Array, jax.Ar
 
 def slot_agents(index: DepartIndex, shift: jax.Array, present: jax.Array | None = None) -> jax.Array:
     """[N] (or [N, B] for `present` [N, B]) for each driver on a day moved by `shift` [N] on which
-    only `present` drivers travel (None: all): the driver that held its insertion slot on the
-    scheduled day with everyone (whose fitted speed factor is the slot's). Absent drivers are added
-    after everyone (no vehicle: their entry is unused). The identity when nothing moves."""
+    only `present` drivers travel (None: all): the driver that held its insertion slot in the human
+    phase (scheduled, everyone, no CAV: whose fitted speed factor is the slot's). Absent drivers are
+    added after everyone (no vehicle: their entry is unused). The identity when nothing moves and no
+    CAV shares a departure second with a human after it."""
     n = index.depart.shape[0]
     depart = jnp.round(index.depart + shift).astype(jnp.int32)  # whole seconds
     key = depart * (2 * n) + index.slot_tiebreak  # [N] SUMO's insertion order

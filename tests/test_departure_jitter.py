@@ -89,9 +89,10 @@ def test_the_model_day_gets_its_days_shifts_in_the_program(grid_scenario):
 
 
 def test_a_moved_drivers_speed_factor_is_its_insertion_slots(grid_scenario, monkeypatch):
-    """SUMO draws a vehicle's speedFactor as it is added, in insertion order: on a moved day driver n
+    """SUMO draws a vehicle's speedFactor as it is added, in insertion order: on any day driver n
     drives at the factor of the slot it holds, which the model reads from the driver that held the
-    slot on the scheduled day (`slot_agents`), CAVs added after the humans of their second."""
+    slot in the human phase (scheduled, no CAV; `slot_agents`): after mutation (CAVs added after
+    the humans of their second), on a moved day, and on a day some drivers stay home."""
     import libsumo
 
     from urb_jax.sumo_bridge.sim import Simulator
@@ -109,27 +110,32 @@ def test_a_moved_drivers_speed_factor_is_its_insertion_slots(grid_scenario, monk
     is_cav = draw_cavs(0, scn.n_agents, 0.4)
     moved = DepartureJitter(seed=7, jitter_s=120).scenario_on(scn, 3)
     choice = np.zeros(scn.n_agents, np.int64)
-    home = np.random.default_rng(0).random(scn.n_agents) < 0.2  # a day some drivers stay home
+    home = np.random.default_rng(0).random(scn.n_agents) < 0.2
+    days = [(scn, choice, None), (scn, choice, is_cav), (moved, choice, is_cav),
+            (scn, np.where(home, ABSENT, choice), is_cav)]
     sim = Simulator()
     try:
-        days = []
-        for s, c in ((scn, choice), (moved, choice), (scn, np.where(home, ABSENT, choice))):
+        factor = []
+        for s, c, cav in days:
             factors.clear()
-            sim.run_day(s, c, seed=42, is_cav=is_cav)
-            days.append(np.array([factors.get(str(int(a)), np.nan) for a in scn.agent_id]))
+            sim.run_day(s, c, seed=42, is_cav=cav)
+            factor.append(np.array([factors.get(str(int(a)), np.nan) for a in scn.agent_id]))
     finally:
         sim.close()
-    scheduled, on_moved, on_fewer = days
-    assert np.mean(np.isclose(on_moved, scheduled)) < 0.5  # the factors did not stay with the drivers
+    human_phase, mutated, on_moved, on_fewer = factor
     static = build_static(scn, SurrogateConfig(), max_shift_s=120.0, is_cav=is_cav)
-    shift = jnp.asarray(moved.agent_depart - scn.agent_depart, jnp.float32)
-    holder = np.asarray(slot_agents(static.departs, shift))
-    np.testing.assert_allclose(on_moved, scheduled[holder])
     zero = jnp.zeros(scn.n_agents)
-    np.testing.assert_array_equal(np.asarray(slot_agents(static.departs, zero)), np.arange(scn.n_agents))
+    holder = np.asarray(slot_agents(static.departs, zero))
+    assert (holder != np.arange(scn.n_agents)).sum() > 10  # CAVs moved behind humans of their second
+    np.testing.assert_allclose(mutated, human_phase[holder])
+    shift = jnp.asarray(moved.agent_depart - scn.agent_depart, jnp.float32)
+    assert np.mean(np.isclose(on_moved, human_phase)) < 0.5  # the factors did not stay with the drivers
+    np.testing.assert_allclose(on_moved, human_phase[np.asarray(slot_agents(static.departs, shift))])
     holder = np.asarray(slot_agents(static.departs, zero, jnp.asarray(~home)))
-    assert np.isnan(on_fewer[home]).all() and np.mean(np.isclose(on_fewer[~home], scheduled[~home])) < 0.5
-    np.testing.assert_allclose(on_fewer[~home], scheduled[holder[~home]])
+    assert np.isnan(on_fewer[home]).all() and np.mean(np.isclose(on_fewer[~home], human_phase[~home])) < 0.5
+    np.testing.assert_allclose(on_fewer[~home], human_phase[holder[~home]])
+    no_cav = build_static(scn, SurrogateConfig(), max_shift_s=120.0)
+    np.testing.assert_array_equal(np.asarray(slot_agents(no_cav.departs, zero)), np.arange(scn.n_agents))
 
 
 def test_a_sample_of_moved_days_is_fitted_with_its_shifts(grid_scenario):
