@@ -234,26 +234,11 @@ def test_a_tiny_fleets_run_reports_each_fleet(tmp_path: Path):
 def test_a_stopped_fleets_run_resumes_to_the_uninterrupted_runs_results(tmp_path: Path):
     """Both fleets' learners are in the round checkpoint: a fleets run stopped after its first round
     and resumed ends with the records and metric files of the same run never stopped."""
-    from support.digests import result_digests
-    from support.fakeday import FakeExecutor
-    from support.tiny_runs import tiny_reward_run
-
-    from urb_jax.runs.request import ResumeRequest, TrainRequest
-    from urb_jax.runs.train import resume_train, run_train
+    from support.tiny_runs import stopped_and_whole, tiny_reward_run
 
     confs = tiny_reward_run(tmp_path)
     task = json.loads(Path(confs["task_conf"]).read_text())
     Path(confs["task_conf"]).write_text(json.dumps({**task, "ratio_machines": 0.1, "fleets": [
         {**TWO[0], "share": 0.05}, {**TWO[1], "share": 0.05}]}))
-
-    def train(exp_id, stop_after_round=None):
-        req = TrainRequest(alg="iql_star", exp_id=exp_id, results_dir=str(tmp_path), progress=False, **confs)
-        return run_train(req, executor=FakeExecutor(), stop_after_round=stop_after_round)
-
-    (whole,) = train("whole")
-    (stopped,) = train("stopped", stop_after_round=1)
-    assert result_digests(stopped.folder) is None  # it did stop before its metrics
-    (resumed,) = resume_train(ResumeRequest("stopped", results_dir=str(tmp_path), progress=False),
-                              executor=FakeExecutor())
-    assert result_digests(whole.folder) is not None
-    assert result_digests(resumed.folder) == result_digests(whole.folder)
+    resumed, whole = stopped_and_whole(confs, tmp_path)
+    assert whole is not None and resumed == whole

@@ -47,3 +47,22 @@ def tiny_reward_run(d: Path, **task_keys) -> dict[str, str]:
     (d / "hyb.json").write_text(json.dumps(hyb))
     (d / "task.json").write_text(json.dumps(task))
     return {"hybrid_conf": str(d / "hyb.json"), "task_conf": str(d / "task.json")}
+
+
+def stopped_and_whole(confs: dict[str, str], tmp_path: Path, alg: str = "iql_star") -> tuple[object, object]:
+    """(the result digests of a run of `confs` stopped after its first round and resumed, those of the
+    same run never stopped); asserts the stopped run had written no metrics before its resume."""
+    from support.digests import result_digests
+    from urb_jax.runs.request import ResumeRequest
+    from urb_jax.runs.train import resume_train
+
+    def train(exp_id: str, stop_after_round: int | None = None):
+        req = TrainRequest(alg=alg, exp_id=exp_id, results_dir=str(tmp_path), progress=False, **confs)
+        return run_train(req, executor=FakeExecutor(), stop_after_round=stop_after_round)
+
+    (whole,) = train("whole")
+    (stopped,) = train("stopped", stop_after_round=1)
+    assert result_digests(stopped.folder) is None  # it did stop before its metrics
+    (resumed,) = resume_train(ResumeRequest("stopped", results_dir=str(tmp_path), progress=False),
+                              executor=FakeExecutor())
+    return result_digests(resumed.folder), result_digests(whole.folder)
