@@ -98,47 +98,27 @@ class Static:
     departs: DepartIndex | None = None  # the entries again for days whose departures move (None: never)
 
 
-class Cells(NamedTuple):
-    """The entries a day's sums run over: (row, cell, weight) in cell order for the flows and in
-    row order for the times, over `n_cells` cells (`sorted_flow`: flow_cell is sorted)."""
+class DayWeights(NamedTuple):
+    """A day's entry weights in cell order [M] and in row order [M], and each agent's insertion
+    load [N]: the scheduled ones, or those of a day whose departures move (the rest is static)."""
 
-    flow_row: jax.Array
-    flow_cell: jax.Array
     flow_w: jax.Array
-    time_row: jax.Array
-    time_cell: jax.Array
     time_w: jax.Array
-    n_cells: int
-    sorted_flow: bool
-
-
-class DayLayout(NamedTuple):
-    """A day's cells with each cell's edge [C] and capacity [C], and each agent's insertion load [N]."""
-
-    cells: Cells
-    cell_edge: jax.Array
-    cell_cap: jax.Array
     origin_load: jax.Array
 
 
-def day_layout(static: Static, shift: jax.Array | None) -> DayLayout:
-    """The scheduled day's precomputed layout (`shift` None), or the layout of a day whose drivers
-    leave `shift` [N] seconds off their schedule (surrogate/departures.py)."""
+def weights_on(static: Static, shift: jax.Array | None) -> DayWeights:
+    """The scheduled day's weights (`shift` None), or those of a day whose drivers leave `shift` [N]
+    seconds off their schedule (surrogate/departures.py)."""
     if shift is None:
-        cells = Cells(static.flow_row, static.flow_cell, static.flow_w, static.time_row, static.time_cell,
-                      static.time_w, static.n_cells, True)
-        return DayLayout(cells, static.cell_edge, static.cell_cap, static.origin_load)
-    index = static.departs
-    if index is None:
+        return DayWeights(static.flow_w, static.time_w, static.origin_load)
+    if static.departs is None:
         raise ValueError("this surrogate was built for scheduled departures only: build it with "
                          "build_static(..., max_shift_s=J) to predict days whose departures move")
     if static.queue is not None:
         raise ValueError("the queue model places its entries from the scheduled departures: days whose "
                          "departures move need surrogate_model 'bpr'")
-    flow_w, time_w, load = day_weights(index, shift)
-    cells = Cells(static.flow_row, static.flow_cell, flow_w, static.time_row, static.time_cell, time_w,
-                  static.n_cells, True)
-    return DayLayout(cells, static.cell_edge, static.cell_cap, load)
+    return DayWeights(*day_weights(static.departs, shift))
 
 
 def junction_types(net_file: str, edge_ids: tuple[str, ...]) -> list[str]:
@@ -276,31 +256,30 @@ def edge_terms(params: dict[str, jax.Array], static: Static) -> tuple[jax.Array,
     return static.edge_t0 * speed + junc, a
 
 
-def _route_times(X: jax.Array, base_c: jax.Array, a_c: jax.Array, cap_c: jax.Array, cells: Cells,
-                 static: Static) -> jax.Array:
+def _route_times(X: jax.Array, base_c: jax.Array, a_c: jax.Array, w: DayWeights, static: Static) -> jax.Array:
     """[N*K, b] route weights -> [N*K, b] route times (s), both batch-last."""
     F = jax.ops.segment_sum(
-        cells.flow_w[:, None] * X[cells.flow_row], cells.flow_cell, cells.n_cells,
-        indices_are_sorted=cells.sorted_flow,
+        w.flow_w[:, None] * X[static.flow_row], static.flow_cell, static.n_cells,
+        indices_are_sorted=True,
     )
-    r = F / cap_c[:, None]
+    r = F / static.cell_cap[:, None]
     tau = base_c[:, None] * (1.0 + a_c[:, None] * jax.lax.integer_pow(r, static.power))
     return jax.ops.segment_sum(
-        cells.time_w[:, None] * tau[cells.time_cell], cells.time_row, static.n * static.k,
+        w.time_w[:, None] * tau[static.time_cell], static.time_row, static.n * static.k,
         indices_are_sorted=True,
     )
 
 
-def _day_chunk(chunk_in: jax.Array, base_c, a_c, cap_c, cells: Cells, static: Static) -> jax.Array:
+def _day_chunk(chunk_in: jax.Array, base_c, a_c, w: DayWeights, static: Static) -> jax.Array:
     """One batch chunk, batch-last: int [N, b] choices or [N, K, b] probabilities -> [N, b] seconds."""
     N, K = static.n, static.k
     if chunk_in.ndim == 2:  # route indices
         X = (chunk_in[:, None, :] == jnp.arange(K, dtype=chunk_in.dtype)[None, :, None])
         X = X.astype(jnp.float32).reshape(N * K, -1)
-        R = _route_times(X, base_c, a_c, cap_c, cells, static).reshape(N, K, -1)
+        R = _route_times(X, base_c, a_c, w, static).reshape(N, K, -1)
         return jnp.take_along_axis(R, chunk_in[:, None, :], axis=1)[:, 0]
     X = chunk_in.reshape(N * K, -1)
-    R = _route_times(X, base_c, a_c, cap_c, cells, static).reshape(N, K, -1)
+    R = _route_times(X, base_c, a_c, w, static).reshape(N, K, -1)
     return (chunk_in * R).sum(axis=1)
 
 
@@ -313,8 +292,7 @@ def _queue_day_chunk(chunk_in: jax.Array, base_c, a_c, g: jax.Array, params, sta
         X = X.astype(jnp.float32).reshape(N * K, -1)
     else:
         X = chunk_in.reshape(N * K, -1)
-    cells = day_layout(static, None).cells
-    R = _route_times(X, base_c, a_c, static.cell_cap, cells, static) * jnp.repeat(g, K)[:, None]
+    R = _route_times(X, base_c, a_c, weights_on(static, None), static) * jnp.repeat(g, K)[:, None]
     R = (R + queue_route_delays(params, static.queue, X)).reshape(N, K, -1)
     if chunk_in.ndim == 2:
         return jnp.take_along_axis(R, chunk_in[:, None, :], axis=1)[:, 0]
@@ -325,8 +303,7 @@ def route_times_seconds(params, static: Static, probs: jax.Array) -> jax.Array:
     """[B, N, K] probabilities -> [B, N, K] time of every route given the flows (s, no insertion)."""
     base, a = edge_terms(params, static)
     X = jnp.moveaxis(probs, 0, -1).reshape(static.n * static.k, -1)
-    lay = day_layout(static, None)
-    R = _route_times(X, base[lay.cell_edge], a[lay.cell_edge], lay.cell_cap, lay.cells, static)
+    R = _route_times(X, base[static.cell_edge], a[static.cell_edge], weights_on(static, None), static)
     if static.queue is not None:
         R = R * jnp.exp(params["log_agent"])[:, None] + queue_route_delays(params, static.queue, X)
         return jnp.moveaxis(R.reshape(static.n, static.k, -1), -1, 0)
@@ -350,8 +327,8 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array,
     given = choices
     B = choices.shape[0]
     base, a = edge_terms(params, static)
-    lay = day_layout(static, shift)
-    base_c, a_c = base[lay.cell_edge], a[lay.cell_edge]
+    w = weights_on(static, shift)
+    base_c, a_c = base[static.cell_edge], a[static.cell_edge]
     x = jnp.moveaxis(choices, 0, -1)  # batch last
     if not is_prob:
         x = x.astype(jnp.int32)
@@ -360,7 +337,7 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array,
 
     def day_chunk(c: jax.Array) -> jax.Array:
         if static.queue is None:
-            return _day_chunk(c, base_c, a_c, lay.cell_cap, lay.cells, static)
+            return _day_chunk(c, base_c, a_c, w, static)
         return _queue_day_chunk(c, base_c, a_c, jnp.exp(params["log_agent"]), params, static)
 
     if size >= B:
@@ -373,11 +350,11 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array,
         xs = jnp.moveaxis(x.reshape((*x.shape[:-1], n_chunks, size)), -2, 0)
         out = jax.lax.map(day_chunk, xs)  # [n_chunks, N, size]
         sec = jnp.moveaxis(out, 0, 1).reshape(static.n, -1)[:, :B]
-    ins = jnp.exp(params["log_ins"]) * lay.origin_load[:, None]
+    ins = jnp.exp(params["log_ins"]) * w.origin_load[:, None]
     if static.queue is None:
         g = jnp.exp(params["log_agent"])  # [N]
         if shift is not None:  # a moved day: each driver drives at its insertion slot's factor
-            assert static.departs is not None  # day_layout refused otherwise
+            assert static.departs is not None  # weights_on refused otherwise
             g = g[slot_agents(static.departs, shift, present)]  # [N] or [N, B]
         sec = sec * (g[:, None] if g.ndim == 1 else g) + ins + params["intercept"]
     else:  # the per-agent factor is already on the BPR part only
