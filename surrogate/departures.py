@@ -46,7 +46,7 @@ if TYPE_CHECKING:  # model.py imports this module
     jax.tree_util.register_dataclass,
     data_fields=["flow_agent", "flow_pos", "time_agent", "time_pos", "depart", "pair_agent", "pair_other",
                  "slot_tiebreak", "slot_agent"],
-    meta_fields=["bin_s", "interpolate", "origin_window_s"],
+    meta_fields=["bin_s", "interpolate", "origin_window_s", "moves"],
 )
 @dataclass(frozen=True)
 class DepartIndex:
@@ -65,6 +65,7 @@ class DepartIndex:
     bin_s: float
     interpolate: bool
     origin_window_s: float
+    moves: bool  # the entries can move (max_shift_s > 0); else only the insertion slots vary
 
 
 def reachable_bins(enter: np.ndarray, bin_s: float, interpolate: bool, max_shift_s: float
@@ -84,8 +85,8 @@ def reachable_bins(enter: np.ndarray, bin_s: float, interpolate: bool, max_shift
 
 
 def build_depart_index(scn: Scenario, flow_agent: np.ndarray, flow_pos: np.ndarray, time_agent: np.ndarray,
-                       time_pos: np.ndarray, config: SurrogateConfig, is_cav: np.ndarray | None
-                       ) -> DepartIndex:
+                       time_pos: np.ndarray, config: SurrogateConfig, is_cav: np.ndarray | None,
+                       moves: bool) -> DepartIndex:
     """The index of the pairs `build_static` laid out: their agents and positions in cell order and
     in row order, the same-origin pairs of `scn`'s drivers and their insertion slots (`is_cav` [N]:
     CAVs are added after the humans of their second; None: no CAV)."""
@@ -102,7 +103,7 @@ def build_depart_index(scn: Scenario, flow_agent: np.ndarray, flow_pos: np.ndarr
         depart=f32(scn.agent_depart), pair_agent=i32(pair[:, 0]), pair_other=i32(pair[:, 1]),
         slot_tiebreak=i32(tiebreak), slot_agent=i32(np.argsort(scn.agent_depart * 2 * n + np.arange(n))),
         bin_s=float(config.bin_s), interpolate=bool(config.interpolate),
-        origin_window_s=float(config.origin_window_s),
+        origin_window_s=float(config.origin_window_s), moves=moves,
     )
 
 

@@ -118,6 +118,8 @@ def weights_on(static: Static, shift: jax.Array | None) -> DayWeights:
     if static.queue is not None:
         raise ValueError("the queue model places its entries from the scheduled departures: days whose "
                          "departures move need surrogate_model 'bpr'")
+    if not static.departs.moves:  # only the insertion slots vary (demand): the built weights hold
+        return DayWeights(static.flow_w, static.time_w, static.origin_load)
     return DayWeights(*day_weights(static.departs, shift))
 
 
@@ -164,6 +166,22 @@ def _origin_load(scn: Scenario, window: float) -> np.ndarray:
     return load
 
 
+def _scheduled_entries(row: np.ndarray, edge: np.ndarray, enter: np.ndarray, config: SurrogateConfig
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(row, edge, bin, weight) of the (route entry, bin) pairs with a weight, entering at `enter` s:
+    split between the two nearest bin centres, or whole in its bin (`config.interpolate`)."""
+    u = enter / config.bin_s - 0.5  # position relative to bin centres
+    b0 = np.floor(u).astype(np.int64)
+    f = u - b0
+    if not config.interpolate:
+        b0, f = np.floor(enter / config.bin_s).astype(np.int64), np.zeros_like(u)
+    rows, edges = np.concatenate([row, row]), np.concatenate([edge, edge])
+    b = np.concatenate([b0, b0 + 1]) + 1  # >= 0
+    w = np.concatenate([1.0 - f, f])
+    keep = w > 0
+    return rows[keep], edges[keep], b[keep], w[keep]
+
+
 def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
                  max_shift_s: float | None = None, is_cav: np.ndarray | None = None) -> Static:
     """Precompute the (agent, route, edge, bin) entries, the compact cells and the edge features;
@@ -181,18 +199,9 @@ def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
     n_i, k_i, j_i = np.nonzero(valid)
     e_i = routes[n_i, k_i, j_i]
     enter = scn.agent_depart[n_i] + config.entry_scale * before[n_i, k_i, j_i]
-    u = enter / config.bin_s - 0.5  # position relative to bin centres
-    b0 = np.floor(u).astype(np.int64)
-    f = u - b0
-    if not config.interpolate:
-        b0, f = np.floor(enter / config.bin_s).astype(np.int64), np.zeros_like(u)
-    row = np.concatenate([n_i * K + k_i] * 2)
-    edge = np.concatenate([e_i, e_i])
-    b = np.concatenate([b0, b0 + 1]) + 1  # >= 0
-    w = np.concatenate([1.0 - f, f])
-    keep = w > 0
-    row, edge, b, w = row[keep], edge[keep], b[keep], w[keep]
-    if max_shift_s is not None:  # departures that move: every bin an entry can reach
+    if max_shift_s is None:
+        row, edge, b, w = _scheduled_entries(n_i * K + k_i, e_i, enter, config)
+    else:  # departures that move: every bin an entry can reach
         entry, b = reachable_bins(enter, config.bin_s, config.interpolate, max_shift_s)
         row, edge, agent = (n_i * K + k_i)[entry], e_i[entry], n_i[entry]
         pos = enter[entry] / config.bin_s - b  # scheduled position relative to the bin (departures.py)
@@ -221,7 +230,7 @@ def build_static(scn: Scenario, config: SurrogateConfig = SurrogateConfig(),
                                  config.queue_spill, jcls, config.queue_cap_start)
                if config.model == "queue" else None),
         departs=(None if max_shift_s is None else build_depart_index(
-            scn, agent[by_cell], pos[by_cell], agent[by_row], pos[by_row], config, is_cav)),
+            scn, agent[by_cell], pos[by_cell], agent[by_row], pos[by_row], config, is_cav, max_shift_s > 0)),
     )
 
 
@@ -332,7 +341,6 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array,
     x = jnp.moveaxis(choices, 0, -1)  # batch last
     if not is_prob:
         x = x.astype(jnp.int32)
-    present = None if is_prob else x >= 0  # [N, B] who travels (ABSENT: -1; SUMO's insertion slots)
     size = static.chunk
 
     def day_chunk(c: jax.Array) -> jax.Array:
@@ -355,6 +363,7 @@ def predict(params: dict[str, jax.Array], static: Static, choices: jax.Array,
         g = jnp.exp(params["log_agent"])  # [N]
         if shift is not None:  # a moved day: each driver drives at its insertion slot's factor
             assert static.departs is not None  # weights_on refused otherwise
+            present = None if is_prob else jnp.moveaxis(choices, 0, -1) >= 0  # [N, B] (ABSENT: -1)
             g = g[slot_agents(static.departs, shift, present)]  # [N] or [N, B]
         sec = sec * (g[:, None] if g.ndim == 1 else g) + ins + params["intercept"]
     else:  # the per-agent factor is already on the BPR part only
