@@ -124,7 +124,9 @@ class Group:
     memory_note: str  # the learner's memory against what is available (printed with the probe's estimate)
     seed_map: bool  # the learner's pieces go over the seeds by lax.map, not vmap (fns.maps_seeds)
     depart_jitter: DepartureJitter | None  # departures varying day to day (RoutingEnv.depart_jitter)
-    varies_insertion: bool  # departures or demand vary: SUMO days are kept with their shifts
+    # departures or demand vary: day indices [...] -> each day's departure shifts [..., N] (the env's
+    # own draw, RoutingEnv.day_shifts), with which SUMO days are kept; None: every day as scheduled
+    day_shifts: Callable[[np.ndarray], np.ndarray] | None
 
     @property
     def R(self) -> int:  # noqa: N802 (the letter the shape comments use)
@@ -184,7 +186,15 @@ def setup_group(scn: Scenario, task: TaskConfig, env_cfg: EnvConfig, alg: str, a
                  task.should_humans_adapt, task.human_learning_episodes, task.test_eps, is_cav,
                  np.flatnonzero(is_cav), static, p0,
                  plan, alg_config, fns, GroupKeys(keys[:, 0], keys[:, 1], keys[:, 2]), clock, probe,
-                 memory_note, seed_map, env.depart_jitter, env.varies_insertion)
+                 memory_note, seed_map, env.depart_jitter, _day_shifts(env))
+
+
+def _day_shifts(env: RoutingEnv) -> Callable[[np.ndarray], np.ndarray] | None:
+    """`env.day_shifts` over an array of day indices (None where nothing varies)."""
+    if not env.varies_insertion:
+        return None
+    per_day = jax.jit(jax.vmap(env.day_shifts))
+    return lambda days: np.asarray(per_day(jnp.asarray(days.reshape(-1)))).reshape(*days.shape, env.n_agents)
 
 
 def _plan(alg: str, alg_config: AlgoConfig, env: RoutingEnv, cfg: HybridConfig, mode: str) -> RoundPlan:
@@ -375,7 +385,7 @@ class HybridTrainer:
         state, self.samples, meta = restore_round(self.g.folders[0], shapes, self.g.seeds, rounds_done)
         self.state = TrainState(**state)
         self.rounds_logs, self.sumo_done = meta.rounds, meta.sumo_days
-        if (self.g.varies_insertion and self.g.mode == "hybrid" and self.sumo_done
+        if (self.g.day_shifts is not None and self.g.mode == "hybrid" and self.sumo_done
                 and any(sample.shift is None for sample in self.samples)):
             raise UrbJaxError(f"{self.g.folders[0]}: its checkpoint's SUMO days have no departure shifts (a "
                               "version whose surrogate kept the scheduled insertion order), so its refits "
@@ -461,7 +471,7 @@ class HybridTrainer:
         g = self.g
         t0 = time.perf_counter()
         choices, results, times, days, loss, day_index = self.play_sumo_days(k_act, k_step, k_upd, p)
-        shift = self.day_shifts(day_index)  # [S, p, N] or None
+        shift = None if g.day_shifts is None else g.day_shifts(day_index)  # [S, p, N]
         pred = np.asarray(g.fns.predict_days(  # before the refit
             self.state.params, jnp.asarray(choices), None if shift is None else jnp.asarray(shift)))
         for i in range(g.S):
@@ -482,18 +492,6 @@ class HybridTrainer:
         self.bar.update(g.S * p, self.tag + "train/SUMO", sumo_days_s=g.S * p / dt,
                         sumo_tCAV=float(np.mean([row["sumo_time_cav"] for row in rows])),
                         sumo_tHDV=float(np.mean([row["sumo_time_hdv"] for row in rows])))
-
-    def day_shifts(self, day_index: np.ndarray) -> np.ndarray | None:
-        """[..., N] seconds each driver left off its schedule on the days of index `day_index` [...]
-        (None: departures as scheduled and everyone travelling, every day)."""
-        g = self.g
-        if not g.varies_insertion:
-            return None
-        sched = g.scn.agent_depart
-        if g.depart_jitter is None:  # demand varies: the drivers who travel leave as scheduled
-            return np.zeros((*day_index.shape, len(sched)), np.float32)
-        flat = [g.depart_jitter.departures(int(d), sched) - sched for d in day_index.reshape(-1)]
-        return np.stack(flat).astype(np.float32).reshape(*day_index.shape, len(sched))
 
     def play_sumo_days(self, k_act: jax.Array, k_step: jax.Array, k_upd: jax.Array, p: int
                        ) -> tuple[np.ndarray, list[DayResult], np.ndarray, Day, np.ndarray | None,
@@ -784,19 +782,14 @@ def record_days(writer: RecordsWriter, first_day_minus1: int, phase: str, choice
 
 def sumo_row(t: np.ndarray, pred: np.ndarray, P: int, dt: float, is_cav: np.ndarray,
              cav_index: np.ndarray) -> Row:
-    """A seed's rounds.csv SUMO columns from its SUMO times t and the surrogate's prediction pred [P, N];
-    where demand varies, over the drivers who travelled (t is NaN for those at home)."""
-    if np.isnan(t).any():  # drivers at home: their times are NaN, their predictions meaningless
-        pred_went = np.where(np.isnan(t), np.nan, pred)
-        day_error = np.nanmean(pred_went, 1) - np.nanmean(t, 1)  # [P]
-        return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": _group_mean(t[:, cav_index], np.nanmean),
-                "sumo_time_hdv": _group_mean(t[:, ~is_cav], np.nanmean),
-                "surrogate_mean_error": float(day_error.mean() / np.nanmean(t)),
-                "surrogate_mape": float(np.nanmean(np.abs(pred_went - t) / t))}
-    return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": _group_mean(t[:, cav_index]),
-            "sumo_time_hdv": _group_mean(t[:, ~is_cav]),
-            "surrogate_mean_error": float((pred.mean(1) - t.mean(1)).mean() / t.mean()),
-            "surrogate_mape": float(np.mean(np.abs(pred - t) / t))}
+    """A seed's rounds.csv SUMO columns from its SUMO times t and the surrogate's prediction pred [P, N],
+    over the drivers who travelled (t is NaN for a driver at home; nanmean is mean where none is)."""
+    pred_went = np.where(np.isnan(t), np.nan, pred)
+    day_error = np.nanmean(pred_went, 1) - np.nanmean(t, 1)  # [P]
+    return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": _group_mean(t[:, cav_index], np.nanmean),
+            "sumo_time_hdv": _group_mean(t[:, ~is_cav], np.nanmean),
+            "surrogate_mean_error": float(day_error.mean() / np.nanmean(t)),
+            "surrogate_mape": float(np.nanmean(np.abs(pred_went - t) / t))}
 
 
 def _stack(trees: list[Any]) -> Any:
