@@ -67,6 +67,7 @@ def _serve_days(conn: Connection, sim: Simulator) -> None:
         try:
             res = sim.run_day(scenarios[key], choices, seed=seed, is_cav=is_cav, next_seed=next_seed)
             conn.send(("ok", tid, res))
+            sim.preload()  # the next day's network, while the parent takes this result
         except (BrokenPipeError, ConnectionResetError):
             raise  # the parent is gone
         except MemoryError:
@@ -90,6 +91,7 @@ class _Worker:
         self.scenarios: KeptScenarios[None] = KeptScenarios()  # what the worker holds
         self.task: int | None = None
         self.started = 0.0
+        self.finished = 0.0
 
     def wait_ready(self, timeout: float) -> None:
         if not self.conn.poll(timeout):

@@ -162,6 +162,7 @@ class _Slot:
     task: int | None = None
     ref: ObjectRef | None = None  # the day in flight
     started: float = 0.0
+    finished: float = 0.0
 
 
 class RayExecutor:

@@ -82,11 +82,12 @@ def failed_twice(scenario: Scenario, day: int, seed: int, attempts: list[str],
 
 
 class Slot(Protocol):
-    """One worker as the scheduler sees it; the scheduler sets `task` and `started`."""
+    """One worker as the scheduler sees it; the scheduler sets `task`, `started` and `finished`."""
 
     index: int  # position in the backend's `slots`, kept by a restart
     task: int | None  # day index in the batch, None when idle
     started: float  # time.monotonic() when the day was handed over
+    finished: float  # time.monotonic() when its last day came back (0: none yet)
 
 
 KEPT_SCENARIOS = 16  # scenarios a worker keeps (a run with day-varying departures sends one a day)
@@ -208,9 +209,11 @@ class _Run(Generic[S]):
         return done
 
     def _dispatch(self) -> None:
-        """Hand queued days to idle workers."""
+        """Hand queued days to idle workers, the longest idle first: a worker pre-loads its next
+        day after sending a result, so days asked for one at a time (the human phase) alternate
+        between workers and find the network loaded."""
         seeds, n_slots = self.batch.seeds, len(self.w.slots)
-        for s in list(self.w.slots):
+        for s in sorted(self.w.slots, key=lambda s: s.finished):
             if s.task is not None or not self.todo:
                 continue
             tid = self.todo.popleft()
@@ -233,7 +236,7 @@ class _Run(Generic[S]):
             elif out is not None:
                 assert s.task is not None
                 self.results[s.task] = out
-                s.task = None
+                s.task, s.finished = None, time.monotonic()
             elif time.monotonic() - s.started > self.day_timeout_s:
                 self._fail(s, self.w.overdue(s))
 

@@ -4,8 +4,11 @@ libsumo allows one simulation per process, so a `Simulator` owns it: the network
 `libsumo.load` once per day (SUMO has no cheaper exact reset: `loadState` diverges from a fresh
 run), vehicles are added up front with their departure seconds (identical to RouteRL's
 second-by-second `vehicle.add`, checked against the CLI), and per-vehicle results come from
-SUMO's tripinfo output on /dev/shm. The tripinfo file is closed by pre-loading the next day
-right after the last step, so a day costs one network load, as SUMO's one-shot CLI run does.
+SUMO's tripinfo output on /dev/shm. After the last step `libsumo.close()` closes the tripinfo
+file (about a tenth of a load), and the next day's network is loaded by `preload()`: a pool
+worker calls it after sending the day back, so the load overlaps the caller's next step instead
+of delaying this day's result; otherwise the next day loads it. A day costs one network load, as
+SUMO's one-shot CLI run does.
 """
 
 from __future__ import annotations
@@ -81,6 +84,7 @@ class Simulator:
         base = self.config.shm_dir if os.path.isdir(self.config.shm_dir) else None
         self.workdir = Path(tempfile.mkdtemp(prefix=f"urbjax-sumo-{os.getpid()}-", dir=base))
         self._fresh: tuple | None = None  # load key of a loaded, not yet simulated state
+        self._next: tuple | None = None  # load key `preload` loads (the last day's next day)
         self._trip_path: Path | None = None
         self._n_loads = 0
         atexit.register(shutil.rmtree, self.workdir, True)  # files only; libsumo ends with us
@@ -113,19 +117,36 @@ class Simulator:
         self._fresh = key
         self._trip_path = trip
 
-    def close(self) -> None:
+    def _close_libsumo(self) -> None:
+        """End the simulation this Simulator holds (its outputs, the tripinfo, are closed)."""
         if _LIBSUMO["owner"] is self:
-            libsumo = import_libsumo()
             with contextlib.suppress(Exception):
-                libsumo.close()
+                import_libsumo().close()
             _LIBSUMO["started"], _LIBSUMO["owner"] = False, None
         self._fresh = None
+
+    def preload(self) -> None:
+        """Load the network for the next day `run_day` named (`next_seed`), unless loaded: what a
+        pool worker does while its result travels back. A failed load is left to that day, which
+        loads again and reports the error as its own."""
+        key, self._next = self._next, None
+        if key is None or (self._fresh == key and _LIBSUMO["owner"] is self):
+            return
+        try:
+            with redirect_fds(self.log_file if self.redirect_output else None):
+                self._load(key)
+        except Exception:  # noqa: BLE001 (the day that needs this state reports it)
+            self._fresh = None
+
+    def close(self) -> None:
+        self._close_libsumo()
+        self._next = None
         shutil.rmtree(self.workdir, ignore_errors=True)
 
     # --- one day ------------------------------------------------------------------------
     def run_day(self, scenario: Scenario, choices: np.ndarray, *, seed: int,
                 is_cav: np.ndarray | None = None, next_seed: int | None = None) -> DayResult:
-        """One day; `next_seed` (default: `seed`) is the seed the next day is pre-loaded with."""
+        """One day; `next_seed` (default: `seed`) is the seed `preload` loads the next day with."""
         with redirect_fds(self.log_file if self.redirect_output else None):
             return self._run_day(scenario, choices, seed, is_cav, seed if next_seed is None else next_seed)
 
@@ -162,7 +183,8 @@ class Simulator:
 
         end_time = libsumo.simulation.getTime()
         teleports = int(float(libsumo.simulation.getParameter("", "stats.teleports.total")))
-        self._load((*key[:2], int(next_seed), key[3]))  # closes this day's tripinfo; pre-loads the next day
+        self._close_libsumo()  # closes this day's tripinfo
+        self._next = (*key[:2], int(next_seed), key[3])
         trips = parse_tripinfo(trip_path)
         trip_path.unlink(missing_ok=True)
         return self._result(scn, trips, removed, pos, depart, seed, teleports, end_time,

@@ -177,7 +177,7 @@ def test_ctrl_c_restarts_no_worker():
 
     class Slot:
         def __init__(self, index):
-            self.index, self.task, self.started = index, None, 0.0
+            self.index, self.task, self.started, self.finished = index, None, 0.0, 0.0
 
     class Backend:
         def __init__(self):

@@ -20,6 +20,7 @@ from support.blocker import make_blocker
 
 from urb_jax.reporting.day_export import day_routes_xml
 from urb_jax.sumo_bridge import ARRIVED, REMOVED_CAP, REMOVED_STUCK, SumoConfig, run_day
+from urb_jax.sumo_bridge.sim import Simulator
 
 pytestmark = pytest.mark.sumo
 
@@ -151,6 +152,23 @@ def test_repeated_days_are_identical(grid_scenario):
     run_day(grid_scenario, np.zeros_like(choices), seed=5)  # something else in between
     b = run_day(grid_scenario, choices, seed=42)
     assert a.same_as(b)
+
+
+def test_preloaded_next_day_needs_no_load_and_is_the_same_day(grid_scenario):
+    """`preload` loads the day `run_day` named next; that day then runs without a load of its own
+    and equals a day run from a fresh start."""
+    choices = grid_scenario.fft.argmin(1)
+    sim = Simulator()
+    try:
+        first = sim.run_day(grid_scenario, choices, seed=42, next_seed=7)
+        sim.preload()
+        loads = sim._n_loads
+        nxt = sim.run_day(grid_scenario, choices, seed=7)
+        assert sim._n_loads == loads  # its network was pre-loaded
+        assert sim.run_day(grid_scenario, choices, seed=42).same_as(first)  # no pre-load: loads itself
+    finally:
+        sim.close()
+    assert nxt.same_as(run_day(grid_scenario, choices, seed=7))
 
 
 def test_deadlocked_day_ends_with_stuck_vehicles_removed(grid_scenario, tmp_path):

@@ -117,3 +117,15 @@ def test_pool_takes_per_day_cav_masks(pool, grid_scenario):
         assert out[b].same_as(run_day(grid_scenario, choices[b], seed=9, is_cav=cav[b]))
     with pytest.raises(ValueError, match="is_cav"):
         pool.run_days(grid_scenario, choices, [9, 9], is_cav=cav[:, :5])
+
+
+def test_days_asked_one_at_a_time_alternate_workers_and_match(pool, grid_scenario, days, monkeypatch):
+    """A worker loads its next day's network after sending a result; the longest-idle worker gets
+    the next day, so single-day batches (the human phase) alternate and find the network loaded."""
+    choices, seeds, ref = days
+    sent = []
+    submit = pool.submit
+    monkeypatch.setattr(pool, "submit", lambda w, job: sent.append(w.index) or submit(w, job))
+    out = [pool.run_days(grid_scenario, choices[i:i + 1], seeds[i:i + 1])[0] for i in range(len(seeds))]
+    assert all(a.same_as(b) for a, b in zip(out, ref, strict=True))
+    assert all(a != b for a, b in zip(sent, sent[1:], strict=False)), sent
