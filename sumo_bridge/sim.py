@@ -135,7 +135,7 @@ class Simulator:
         try:
             with redirect_fds(self.log_file if self.redirect_output else None):
                 self._load(key)
-        except Exception:  # noqa: BLE001 (the day that needs this state reports it)
+        except Exception:  # the day that needs this state loads again and reports it
             self._fresh = None
 
     def close(self) -> None:

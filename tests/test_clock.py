@@ -10,7 +10,14 @@ import pytest
 from support.fakeday import FakeExecutor
 
 from urb_jax.runs.request import ResumeRequest, TrainRequest
-from urb_jax.training.hybrid.clock import LINE_EVERY_S, IterationClock, chunk_len, fmt_duration, run_chunks
+from urb_jax.training.hybrid.clock import (
+    LINE_EVERY_S,
+    IterationClock,
+    chunk_len,
+    fmt_duration,
+    leg_chunk_len,
+    run_chunks,
+)
 
 
 class FakeTime:
@@ -66,6 +73,40 @@ def test_chunks_cut_a_round_into_equal_parts():
     for n in range(1, 200):
         L = chunk_len(n)
         assert n % L == 0 and (n // L >= 8 or L == 1)
+
+
+def test_a_short_last_round_shares_the_full_rounds_chunk_where_it_can():
+    # St. Arnoult at 6,000 days: rounds of 40 iterations (chunks of 5) and a last round of 12
+    assert leg_chunk_len(40, 40, 12) == leg_chunk_len(12, 40, 12) == 4
+    assert leg_chunk_len(40, 40, 40) == chunk_len(40) == 5  # no short round: unchanged
+    # sharing would cut 64 into 64 chunks of 1 instead of 8 of 8: each leg keeps its own
+    assert (leg_chunk_len(64, 64, 7), leg_chunk_len(7, 64, 7)) == (8, 1)
+    for full in range(1, 60):
+        for last in range(0, full + 1):
+            L = leg_chunk_len(full, full, last)
+            assert full % L == 0 and chunk_len(full) <= 2 * L, (full, last)  # at most 2x the chunks
+            if last:
+                assert last % leg_chunk_len(last, full, last) == 0
+
+
+def test_one_program_serves_a_full_round_and_a_short_last_round():
+    import jax
+    import jax.numpy as jnp
+
+    def step(c, k):
+        return c + jax.random.normal(k), {"l": c}
+
+    fn = jax.jit(jax.vmap(lambda c, ks: jax.lax.scan(step, c, ks)))
+    keys = jax.vmap(lambda k: jax.random.split(k, 40))(jax.random.split(jax.random.PRNGKey(1), 2))
+    programs: dict = {}
+    clock = IterationClock(40, 2, note=lambda _: None)
+    (full,), _ = run_chunks(fn, (jnp.zeros(2),), keys, clock, programs, leg_chunk_len(40, 40, 12))
+    (last,), _ = run_chunks(fn, (full,), keys[:, :12], clock, programs, leg_chunk_len(12, 40, 12))
+    assert len(programs) == 1
+    whole, _ = fn(fn(jnp.zeros(2), keys)[0], keys[:, :12])
+    np.testing.assert_array_equal(np.asarray(last), np.asarray(whole))
+    with pytest.raises(ValueError, match="does not divide"):
+        run_chunks(fn, (full,), keys[:, :12], clock, programs, 5)
 
 
 def test_run_chunks_equals_one_scan_and_tells_the_clock_each_chunk():

@@ -47,9 +47,9 @@ def uninterrupted(tiny_iql_confs, tmp_path_factory):
     for case in CASES:
         legs: list[int] = []
 
-        def counting(fn, carry, keys, clk, programs, legs=legs):
+        def counting(fn, carry, keys, clk, programs, chunk=None, legs=legs):
             legs.append(int(keys.shape[1]))  # the iterations this leg really runs
-            return clock.run_chunks(fn, carry, keys, clk, programs)
+            return clock.run_chunks(fn, carry, keys, clk, programs, chunk)
 
         ex = FakeExecutor()
         with pytest.MonkeyPatch.context() as mp:

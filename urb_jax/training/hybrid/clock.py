@@ -124,23 +124,39 @@ def chunk_len(n_iters: int, chunks: int = CHUNKS) -> int:
     return max(d for d in range(1, cap + 1) if n_iters % d == 0)
 
 
+def leg_chunk_len(n_iters: int, round_iters: int, last_iters: int) -> int:
+    """The chunk length of a leg of `n_iters` in a plan of full rounds of `round_iters` iterations and
+    a last round of `last_iters`: where one length cuts both into equal chunks without more than
+    halving the full rounds' (`chunk_len`), that one, so one compiled program serves the short last
+    round too (a cold run compiles the round once); otherwise each leg's own `chunk_len`."""
+    full = chunk_len(round_iters) if round_iters else 1
+    shared = max(d for d in range(1, full + 1) if round_iters % d == 0 and last_iters % d == 0) \
+        if last_iters else full
+    if 2 * shared >= full and n_iters % shared == 0:
+        return shared
+    return chunk_len(n_iters)
+
+
 Carry = tuple[Any, ...]
 
 
 def run_chunks(fn: Callable[..., tuple[Any, ...]], carry: Carry, keys: jax.Array, clock: IterationClock,
-               programs: dict[Any, Any]) -> tuple[Carry, dict[str, np.ndarray]]:
+               programs: dict[Any, Any], chunk: int | None = None) -> tuple[Carry, dict[str, np.ndarray]]:
     """`fn(*carry, keys[:, chunk]) -> (*carry, metrics)` over the iterations' keys [S, n, 2] in equal
-    chunks, the clock told as each chunk starts and when the last ends. The chunk program is
-    compiled ahead (`programs` keeps it, keyed by fn and argument types), so the clock times the
-    iterations, not the compilation. Returns the carry and the metrics [S, n, ...] as numpy."""
+    chunks of `chunk` iterations (default `chunk_len(n)`; it must divide n), the clock told as each
+    chunk starts and when the last ends. The chunk program is compiled ahead (`programs` keeps it,
+    keyed by fn and argument types), so the clock times the iterations, not the compilation.
+    Returns the carry and the metrics [S, n, ...] as numpy."""
     n = keys.shape[1]
-    L = chunk_len(n)
+    L = chunk or chunk_len(n)
+    if n % L:
+        raise ValueError(f"a chunk of {L} iterations does not divide the leg's {n}")
     parts: list[dict[str, Any]] = []
     for start in range(0, n, L):
-        chunk = keys[:, start:start + L]
-        program = _compiled(fn, (*carry, chunk), programs)
+        part = keys[:, start:start + L]
+        program = _compiled(fn, (*carry, part), programs)
         clock(start)
-        *out, metrics = program(*carry, chunk)
+        *out, metrics = program(*carry, part)
         carry = tuple(jax.block_until_ready(out))
         parts.append(metrics)
     clock(n)

@@ -61,7 +61,13 @@ from urb_jax.training.checkpoints import (
     verified_checkpoint,
 )
 from urb_jax.training.human_phase import HumanPhase, calibrate
-from urb_jax.training.hybrid.clock import IterationClock, needs_probe, probe_seconds, run_chunks
+from urb_jax.training.hybrid.clock import (
+    IterationClock,
+    leg_chunk_len,
+    needs_probe,
+    probe_seconds,
+    run_chunks,
+)
 from urb_jax.training.hybrid.diverged import check_learner
 from urb_jax.training.hybrid.fns import ActFn, Runner, TrainerFns, build_fns, maps_seeds
 from urb_jax.training.hybrid.memory import check_fits
@@ -442,14 +448,16 @@ class HybridTrainer:
         keys = g.fns.iter_keys(k_sur)  # [S, iters, 2]
         if n_iters < keys.shape[1]:
             keys = keys[:, :n_iters]
+        chunk = leg_chunk_len(n_iters, g.plan.iters, g.plan.last_iters)
         if g.adapt:  # adapting humans: the population lives the round's days too
             pop = jax.tree_util.tree_map(lambda x: x[:, 0], self.state.real)
             (runner, pop), m = run_chunks(g.fns.sur_round_adapt, (self.state.runner, pop), keys, g.clock,
-                                          self.programs)
+                                          self.programs, chunk)
             real = jax.tree_util.tree_map(lambda x: x[:, None], pop)  # [S, 1]
             self.state = self.state._replace(runner=runner, real=real)
         else:
-            (runner,), m = run_chunks(g.fns.sur_round, (self.state.runner,), keys, g.clock, self.programs)
+            (runner,), m = run_chunks(g.fns.sur_round, (self.state.runner,), keys, g.clock, self.programs,
+                                      chunk)
             self.state = self.state._replace(runner=runner)
         m = {k: v.reshape(g.S, -1).mean(1) for k, v in m.items()}
         dt = time.perf_counter() - t0
