@@ -49,16 +49,40 @@ def seed_to_seed_mape(scn, c_te: np.ndarray, kinds: list[str], te: SumoSample, w
                           for r, d in zip(rows, other, strict=True)]))
 
 
+def seed_floor(scn, c_te: np.ndarray, te: SumoSample, n_seeds: int, workers: int) -> list[dict]:
+    """What SUMO itself scores against seed 42 on the held-out days: seed 43's days as the prediction,
+    and the mean of seeds 43..42+n_seeds (the nearest to a perfect deterministic model that SUMO can
+    show); the metrics are error_metrics', on the agent-days that arrived under every seed. Also the
+    R² ceiling of any deterministic prediction: 1 - (per agent-day variance across all n_seeds + 1
+    seeds, averaged) / (variance of seed 42's times)."""
+    others = [SumoSample.from_days(c_te, sumo_days(scn, c_te, SEED + 1 + i, workers=workers))
+              for i in range(n_seeds)]
+    arrived = np.logical_and.reduce([te.arrived, *[o.arrived for o in others]])
+    truth = replace(te, arrived=arrived)
+    times = np.stack([te.travel_time, *[o.travel_time for o in others]])  # [seeds, D, N]
+    noise = float(times.var(axis=0, ddof=1)[arrived].mean())
+    ceiling = 1 - noise / float(te.travel_time[arrived].var())
+    rows = [("sumo, seed 43", others[0].travel_time)]
+    if n_seeds > 1:
+        mean = np.mean([o.travel_time for o in others], axis=0)
+        rows.append((f"sumo, mean of seeds 43-{SEED + n_seeds}", mean))
+    return [{"network": scn.name, "agents": scn.n_agents, "model": name, **error_metrics(pred, truth),
+             "r2_ceiling": ceiling, "seed_mape": float("nan"), "fit_s": 0.0} for name, pred in rows]
+
+
 def network_rows(net: str, networks_dir: str | None, models: list[str], train_days: int, test_days: int,
-                 workers: int, seed_noise: bool = True, queue: SurrogateConfig | None = None
-                 ) -> list[dict]:
-    """`queue`: the queue model's options (spill-back, capacity start; `model` is each row's)."""
+                 workers: int, seed_noise: bool = True, queue: SurrogateConfig | None = None,
+                 floor_seeds: int = 0) -> list[dict]:
+    """`queue`: the queue model's options (spill-back, capacity start; `model` is each row's);
+    `floor_seeds`: SUMO's own floor rows from that many more seeds (`seed_floor`; 0: none)."""
     scn = load_scenario(net, networks_dir=networks_dir)
     bpr = build_static(scn)
     c_tr, _ = make_choices(scn, bpr, init_params(bpr), train_days, seed=1)
     c_te, kinds = make_choices(scn, bpr, init_params(bpr), test_days, seed=2)
-    tr = SumoSample.from_days(c_tr, sumo_days(scn, c_tr, SEED, workers=workers))
     te = SumoSample.from_days(c_te, sumo_days(scn, c_te, SEED, workers=workers))
+    if floor_seeds:  # SUMO's floor first: with --models '' no calibration day is run
+        floor = seed_floor(scn, c_te, te, floor_seeds, workers)
+    tr = SumoSample.from_days(c_tr, sumo_days(scn, c_tr, SEED, workers=workers)) if models else te
     out = []
     fitted_bpr = None
     for model in models:
@@ -80,6 +104,8 @@ def network_rows(net: str, networks_dir: str | None, models: list[str], train_da
                     "fit_s": time.perf_counter() - t0})
         print(f"{net} {model}: {m} ({out[-1]['fit_s']:.0f} s)", flush=True)
     noise = seed_to_seed_mape(scn, c_te, kinds, te, workers) if seed_noise else float("nan")
+    if floor_seeds:
+        out += floor
     for r in out:
         r["seed_mape"] = noise
         print(_row(r), flush=True)
@@ -91,9 +117,11 @@ def _meets(r: dict) -> bool:
 
 
 def _row(r: dict) -> str:
+    ceiling = f"{r['r2_ceiling']:.3f}" if "r2_ceiling" in r else ""
+    met = "" if r["model"].startswith("sumo") else ("yes" if _meets(r) else "no")
     return (f"| {r['network']} | {r['agents']:,} | {r['model']} | {r['mean_tt_error']:.2%} "
-            f"({r['mean_tt_error_max']:.2%}) | {r['mape']:.2%} | {r['r2']:.3f} | {r['seed_mape']:.2%} | "
-            f"{r['mape'] / r['seed_mape']:.2f} | {'yes' if _meets(r) else 'no'} |")
+            f"({r['mean_tt_error_max']:.2%}) | {r['mape']:.2%} | {r['r2']:.3f} | {ceiling} | "
+            f"{r['seed_mape']:.2%} | {r['mape'] / r['seed_mape']:.2f} | {met} |")
 
 
 def page(rows: list[dict], command: str, train_days: int, test_days: int) -> str:
@@ -107,11 +135,17 @@ def page(rows: list[dict], command: str, train_days: int, test_days: int) -> str
         "perturbed days, per agent (the noise floor of the per-agent error). Targets: mean travel "
         f"time error <= {MEAN_ERROR_TARGET:.0%} and MAPE <= {SEED_MAPE_FACTOR}x seed-to-seed.",
         "",
+        "Rows `sumo, ...` (with `--floor-seeds N`) score SUMO against itself on the same held-out days: "
+        "seed 43's days, and the mean of seeds 43 to 42+N, as the prediction of seed 42's, on the "
+        "agent-days that arrived under every seed. They are what a perfect deterministic surrogate can "
+        "be expected to reach against one SUMO seed; the R² ceiling is 1 - (variance across the N+1 "
+        "seeds of each agent-day's time, averaged) / (variance of seed 42's times).",
+        "",
         f"Regenerate: `{command}`",
         "",
-        "| network | agents | model | mean travel time error (worst day) | MAPE | R² | SUMO seed-to-seed "
-        "MAPE | MAPE / seed-to-seed | targets met |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| network | agents | model | mean travel time error (worst day) | MAPE | R² | R² ceiling | SUMO "
+        "seed-to-seed MAPE | MAPE / seed-to-seed | targets met |",
+        "|---|---|---|---|---|---|---|---|---|---|",
         *[_row(r) for r in rows],
         "",
         "Equations of both models: [surrogate.md](surrogate.md).",
@@ -130,23 +164,26 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2, help="SUMO days in parallel (1: in this process)")
     ap.add_argument("--no-seed-noise", action="store_true",
                     help="skip SUMO's seed-to-seed MAPE (two more SUMO days per network)")
+    ap.add_argument("--floor-seeds", type=int, default=0,
+                    help="SUMO's own floor: the held-out days again with this many more seeds (seed_floor)")
     ap.add_argument("--out", default=None, help="write the table as a Markdown page here")
     ap.add_argument("--no-queue-spill", action="store_true", help="the queue model without spill-back")
     ap.add_argument("--queue-cap-start", type=float, default=SurrogateConfig.queue_cap_start,
                     help="the queue model's service rates start at this share of marouter's capacity")
     args = ap.parse_args()
     models = [m for m in args.models.split(",") if m]
-    print("| network | agents | model | mean error (worst day) | MAPE | R² | seed-to-seed | ratio | met |")
+    print("| network | agents | model | mean error (worst day) | MAPE | R² | R² ceiling | seed-to-seed "
+          "| ratio | met |")
     rows = []
     for net in [n for n in args.nets.split(",") if n]:
         queue = SurrogateConfig(queue_spill=not args.no_queue_spill, queue_cap_start=args.queue_cap_start)
         rows += network_rows(net, args.networks_dir, models, args.train_days, args.test_days, args.workers,
-                             not args.no_seed_noise, queue)
+                             not args.no_seed_noise, queue, args.floor_seeds)
     if args.out:
         command = (f"python benchmarks/surrogate_fidelity.py --networks-dir DIR --nets {args.nets} "
                    f"--models {args.models} --train-days {args.train_days} --test-days {args.test_days} "
                    f"{'--no-queue-spill ' if args.no_queue_spill else ''}--queue-cap-start "
-                   f"{args.queue_cap_start} --out {args.out}")
+                   f"{args.queue_cap_start} --floor-seeds {args.floor_seeds} --out {args.out}")
         write_text(Path(args.out), page(rows, command, args.train_days, args.test_days))
 
 
