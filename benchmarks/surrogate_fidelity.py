@@ -51,10 +51,11 @@ def seed_to_seed_mape(scn, c_te: np.ndarray, kinds: list[str], te: SumoSample, w
 
 def seed_floor(scn, c_te: np.ndarray, te: SumoSample, n_seeds: int, workers: int) -> list[dict]:
     """What SUMO itself scores against seed 42 on the held-out days: seed 43's days as the prediction,
-    and the mean of seeds 43..42+n_seeds (the nearest to a perfect deterministic model that SUMO can
-    show); the metrics are error_metrics', on the agent-days that arrived under every seed. Also the
-    R² ceiling of any deterministic prediction: 1 - (per agent-day variance across all n_seeds + 1
-    seeds, averaged) / (variance of seed 42's times)."""
+    and the mean of seeds 43..42+n_seeds (the nearest SUMO comes to its expected day); the metrics are
+    error_metrics', on the agent-days that arrived under every seed. Also the R² ceiling of a
+    prediction of the expected day: 1 - (per agent-day variance across all n_seeds + 1 seeds,
+    averaged) / (variance of seed 42's times). A model fitted to seed 42's days can exceed both: it
+    learns that seed's draws."""
     others = [SumoSample.from_days(c_te, sumo_days(scn, c_te, SEED + 1 + i, workers=workers))
               for i in range(n_seeds)]
     arrived = np.logical_and.reduce([te.arrived, *[o.arrived for o in others]])
@@ -137,9 +138,11 @@ def page(rows: list[dict], command: str, train_days: int, test_days: int) -> str
         "",
         "Rows `sumo, ...` (with `--floor-seeds N`) score SUMO against itself on the same held-out days: "
         "seed 43's days, and the mean of seeds 43 to 42+N, as the prediction of seed 42's, on the "
-        "agent-days that arrived under every seed. They are what a perfect deterministic surrogate can "
-        "be expected to reach against one SUMO seed; the R² ceiling is 1 - (variance across the N+1 "
-        "seeds of each agent-day's time, averaged) / (variance of seed 42's times).",
+        "agent-days that arrived under every seed: how closely SUMO reproduces its own day under another "
+        "seed. A surrogate calibrated on seed 42's days also learns that seed's per-slot speed factors and "
+        "recurring jams, so where the traffic flows it scores above these rows. The R² ceiling is that of "
+        "a prediction of the expected day over seeds: 1 - (variance across the N+1 seeds of each "
+        "agent-day's time, averaged) / (variance of seed 42's times).",
         "",
         f"Regenerate: `{command}`",
         "",
