@@ -66,6 +66,13 @@ def test_suite_resumes_skips_and_reports(tmp_path):
     report = write_report("test suite", folders, tmp_path / "report")
     text = report.read_text()
     assert "| iql_star | 2 |" in text and "| baseline_aon | 1 |" in text
+    # each run's wall time, the two seeds trained together once, as their exp_config.json says
+    walls = {f.name: json.loads((f / "exp_config.json").read_text()) for f in folders}
+    iql = walls["iqls_s0"]
+    assert walls["iqls_s1"]["wall_time_s"] == iql["wall_time_s"]
+    assert (f"| urb_grid | iql_star | 2 | {iql['wall_time_s']:.0f} s | {iql['human_phase_s']:.0f} s |"
+            in text), text
+    assert f"| urb_grid | baseline_aon | 1 | {walls['aon']['wall_time_s']:.0f} s |  |" in text
     assert sorted(p.name for p in (tmp_path / "report" / "figures").iterdir()) == [
         "urb_grid_baseline_aon_test.png", "urb_grid_iql_star_test.png"]
 

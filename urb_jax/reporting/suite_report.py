@@ -51,6 +51,29 @@ def runs_tables(runs: pd.DataFrame) -> str:
     return "\n".join([*out, LEGEND, ""])
 
 
+def wall_times_table(folders: list[Path]) -> str:
+    """Markdown: each run's wall time on the machine that made it (a row per network and run, seeds
+    trained together counted once: they share one wall time), with the human phase's share."""
+    rows: dict[tuple[str, str], dict] = {}
+    for folder in folders:
+        config = json.loads((folder / "exp_config.json").read_text())
+        key = (str(config.get("network")), str(config.get("alg") or config.get("algorithm")))
+        row = rows.setdefault(key, {"seeds": 0, "wall": 0.0, "human": None})
+        row["seeds"] += 1
+        row["wall"] = max(row["wall"], float(config.get("wall_time_s") or 0.0))
+        if config.get("human_phase_s") is not None:
+            row["human"] = float(config["human_phase_s"])
+    out = ["| network | run | seeds | wall time | of which the human phase |", "|---|---|---|---|---|"]
+    for (net, run), r in sorted(rows.items()):
+        human = "" if r["human"] is None else _duration(r["human"])
+        out.append(f"| {net} | {run} | {r['seeds']} | {_duration(r['wall'])} | {human} |")
+    return "\n".join(out)
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 600 else f"{seconds / 60:.1f} min"
+
+
 def run_label(row: pd.Series) -> str:
     """A suite's row name: urb-jax's id (--alg, baseline_<model>); URB's name for URB's own runs."""
     return str(row.get("alg") or row["algorithm"])
