@@ -10,6 +10,7 @@ into a DayResult (`DAY_CODE`), so that a changed SUMO or a changed day never rea
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import functools
 import hashlib
@@ -77,18 +78,31 @@ def _file_digest(path: str, size: int, mtime_ns: int) -> str:
 
 
 # The modules whose code decides a day's DayResult from the inputs above (insertion, stuck rule,
-# tripinfo parsing, the stored file's fields): an edit to any of them starts fresh keys.
+# tripinfo parsing, the stored file's fields): an edit to their code starts fresh keys.
 DAY_MODULES = ("sim.py", "tripinfo.py", "config.py", "types.py", "batch.py", "memo.py")
 
 
 @functools.cache
 def day_code() -> str:
-    """Hash of the source of `DAY_MODULES` (read once per process)."""
+    """Hash of the code of `DAY_MODULES` (`code_text`; read once per process)."""
     h = hashlib.sha256()
     here = Path(__file__).resolve().parent
     for name in DAY_MODULES:
-        h.update(name.encode() + b"\0" + (here / name).read_bytes() + b"\0")
+        h.update(name.encode() + b"\0" + code_text((here / name).read_text()).encode() + b"\0")
     return h.hexdigest()[:16]
+
+
+def code_text(source: str) -> str:
+    """A module's code without what cannot change a day: comments, docstrings, layout (its syntax
+    tree, docstrings dropped). So editing a comment keeps the stored days; editing a statement does not."""
+    tree = ast.parse(source)
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
+                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree)
 
 
 @functools.cache

@@ -72,6 +72,14 @@ def test_every_input_of_a_day_changes_its_key(grid_scenario, tmp_path, monkeypat
     assert day_key(scn, a, 42, None, SumoConfig(shm_dir="/tmp"), "libsumo 1.28.0") == base
 
 
+def test_the_day_code_ignores_comments_docstrings_and_layout_not_statements():
+    src = 'def f(x):\n    """Why."""\n    return x + 1  # one more\n'
+    same = '# a comment\ndef f(x):\n\n    """Why, said better."""\n    return (x +\n            1)\n'
+    other = 'def f(x):\n    """Why."""\n    return x + 2\n'
+    assert keys.code_text(same) == keys.code_text(src) != keys.code_text(other)
+    assert keys.code_text('def g():\n    """Only a docstring."""\n') == keys.code_text("def g():\n    pass\n")
+
+
 def test_the_day_code_covers_the_modules_that_make_a_day():
     assert {"sim.py", "tripinfo.py", "config.py", "types.py"} <= set(keys.DAY_MODULES)
     assert keys.sumo_version().split()[-1][0].isdigit()
