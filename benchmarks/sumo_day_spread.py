@@ -70,8 +70,9 @@ def main() -> None:
     print(f"| network | day | kind | day mean, seeds {SEED}-{last} (min) | seed {SEED} / mean of the "
           "others - 1 | coefficient of variation |")
     print("|---|---|---|---|---|---|")
+    held = {net: held_out(net, args.networks_dir, args.test_days) for net in nets}
     for net in nets:
-        scn, choices, kinds = held_out(net, args.networks_dir, args.test_days)
+        scn, choices, kinds = held[net]
         means = seed_spread(scn, choices, args.seeds, args.workers)
         for d in range(len(kinds)):
             m = means[:, d]
@@ -87,7 +88,7 @@ def main() -> None:
         net, day = pair.split(":")
         if net not in nets:
             continue
-        scn, choices, kinds = held_out(net, args.networks_dir, args.test_days)
+        scn, choices, kinds = held[net]
         m = one_driver_switches(scn, choices[int(day)], args.switches, args.workers)
         print(f"| {net} | {day} | {kinds[int(day)]} | {m[0]:.2f} | {', '.join(f'{x:.2f}' for x in m[1:])} | "
               f"{m[1:].min():.2f}-{m[1:].max():.2f} |", flush=True)

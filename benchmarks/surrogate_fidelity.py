@@ -81,10 +81,10 @@ def network_rows(net: str, networks_dir: str | None, models: list[str], train_da
     c_tr, _ = make_choices(scn, bpr, init_params(bpr), train_days, seed=1)
     c_te, kinds = make_choices(scn, bpr, init_params(bpr), test_days, seed=2)
     te = SumoSample.from_days(c_te, sumo_days(scn, c_te, SEED, workers=workers))
-    if floor_seeds:  # SUMO's floor first: with --models '' no calibration day is run
-        floor = seed_floor(scn, c_te, te, floor_seeds, workers)
-    tr = SumoSample.from_days(c_tr, sumo_days(scn, c_tr, SEED, workers=workers)) if models else te
+    floor = seed_floor(scn, c_te, te, floor_seeds, workers) if floor_seeds else []
     out = []
+    if models:  # with --models '' no calibration day is run
+        tr = SumoSample.from_days(c_tr, sumo_days(scn, c_tr, SEED, workers=workers))
     fitted_bpr = None
     for model in models:
         t0 = time.perf_counter()
@@ -105,8 +105,7 @@ def network_rows(net: str, networks_dir: str | None, models: list[str], train_da
                     "fit_s": time.perf_counter() - t0})
         print(f"{net} {model}: {m} ({out[-1]['fit_s']:.0f} s)", flush=True)
     noise = seed_to_seed_mape(scn, c_te, kinds, te, workers) if seed_noise else float("nan")
-    if floor_seeds:
-        out += floor
+    out += floor
     for r in out:
         r["seed_mape"] = noise
         print(_row(r), flush=True)

@@ -126,11 +126,11 @@ class Simulator:
         self._fresh = None
 
     def preload(self) -> None:
-        """Load the network for the next day `run_day` named (`next_seed`), unless loaded: what a
-        pool worker does while its result travels back. A failed load is left to that day, which
-        loads again and reports the error as its own."""
+        """Load the network for the next day `run_day` named (`next_seed`), if one is named and not
+        loaded yet: what a pool worker does while its result travels back. A failed load is left to
+        that day, which loads again and reports the error as its own."""
         key, self._next = self._next, None
-        if key is None or (self._fresh == key and _LIBSUMO["owner"] is self):
+        if key is None:
             return
         try:
             with redirect_fds(self.log_file if self.redirect_output else None):

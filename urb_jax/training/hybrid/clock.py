@@ -12,6 +12,7 @@ and every `--resume` compiled the round again.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from typing import Any, cast
@@ -130,8 +131,8 @@ def leg_chunk_len(n_iters: int, round_iters: int, last_iters: int) -> int:
     halving the full rounds' (`chunk_len`), that one, so one compiled program serves the short last
     round too (a cold run compiles the round once); otherwise each leg's own `chunk_len`."""
     full = chunk_len(round_iters) if round_iters else 1
-    shared = max(d for d in range(1, full + 1) if round_iters % d == 0 and last_iters % d == 0) \
-        if last_iters else full
+    common = math.gcd(round_iters, last_iters) if last_iters else full  # what divides both legs
+    shared = max(d for d in range(1, full + 1) if common % d == 0)
     if 2 * shared >= full and n_iters % shared == 0:
         return shared
     return chunk_len(n_iters)
