@@ -19,6 +19,7 @@ from urb_jax.reporting.verdicts import (
     equivalence,
     fisher_exact,
     margin_of,
+    order,
     paired,
     t_cdf,
     t_ppf,
@@ -97,6 +98,19 @@ def test_direction_holds_fails_or_ties():
     exact = Difference(-0.14, 0.0, math.inf)
     assert direction(exact, "<").kind == HOLDS and "by value" in direction(exact, "<").detail
     assert direction(Difference(0.0, 0.0, math.inf), ">").kind == TIE
+
+
+def test_order_says_lower_higher_or_tie():
+    """No claim: the two-sided 5% test. [1, 2, 3] against the constant 0: t = 3.46, df 2, p = 0.074
+    (tie); against -1: t = 5.20, p = 0.035 (higher); the 95% interval is mean ± 4.303 se."""
+    assert order(welch(Sample.of([1, 2, 3]), Sample(0.0, 0.0, 1))).kind == TIE
+    higher = order(welch(Sample.of([1, 2, 3]), Sample(-1.0, 0.0, 1)))
+    assert higher.kind == "higher" and "p = 0.035" in higher.detail
+    assert order(welch(Sample.of([-3, -2, -1]), Sample(1.0, 0.0, 1))).kind == "lower"
+    lo, hi = paired([1, 2, 3], [0, 0, 0]).interval(0.95)
+    assert (lo, hi) == pytest.approx((2 - 4.303 / math.sqrt(3), 2 + 4.303 / math.sqrt(3)), abs=1e-3)
+    assert order(Difference(-0.1, 0.0, math.inf)).kind == "lower"  # no spread: by value
+    assert order(Difference(0.0, 0.0, math.inf)).kind == TIE
 
 
 def test_equivalence_by_tost():

@@ -84,7 +84,8 @@ def _metrics(cfg: dict[str, Any], folder: Path) -> dict[str, Any]:
 
 
 def aggregate(runs: pd.DataFrame, metrics: Sequence[str] = SHOWN) -> pd.DataFrame:
-    """Mean and std over seeds per group of each of `metrics`; WR = % of runs with winrate 1."""
+    """Mean and sample std (ddof=1; 0 for one run) over seeds per group of each of `metrics`; WR = %
+    of runs with winrate 1."""
     out = []
     for key, g in runs.groupby(KEYS, sort=True):
         row = dict(zip(KEYS, key, strict=True))
@@ -95,7 +96,8 @@ def aggregate(runs: pd.DataFrame, metrics: Sequence[str] = SHOWN) -> pd.DataFram
             if m in g:
                 vals = pd.to_numeric(g[m], errors="coerce")
                 row[f"{m}_mean"] = vals.mean()
-                row[f"{m}_std"] = vals.std(ddof=0) if vals.notna().any() else np.nan
+                sd = vals.std(ddof=1) if vals.count() > 1 else 0.0
+                row[f"{m}_std"] = sd if vals.notna().any() else np.nan
         out.append(row)
     return pd.DataFrame(out)
 

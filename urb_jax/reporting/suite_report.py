@@ -1,5 +1,6 @@
 """An experiment suite's results in the paper's layout: one table per (network, task) with a row per
-algorithm (mean ± std over seeds, both trip measures), and one figure per row group: the mean
+algorithm (mean ± sample std over seeds, both trip measures), each trained run against the humans
+and the baselines (`baseline_comparisons`), and one figure per row group: the mean
 travel time of CAVs, humans and everyone over the days, averaged over seeds, with the phases as
 background patches, as the URB paper's figures show them."""
 
@@ -14,19 +15,16 @@ import pandas as pd
 from urb_jax.reporting.leaderboard import KEYS, aggregate, collect_folders
 from urb_jax.reporting.records import plot_phases, read_records
 from urb_jax.reporting.train_days import LEGEND, days_cell
+from urb_jax.reporting.verdicts import Sample, order, paired, welch
 
 TABLE_COLUMNS = [("t_pre", "t_pre"), ("t_CAV", "t_CAV"), ("t_HDV_test", "t_HDV"), ("t_test", "t_all"),
                  ("cost_of_learning", "c_all"), ("delta_V", "ΔV"), ("delta_L", "ΔL"),
                  ("t_pre_duration", "t_pre (dur.)"), ("t_CAV_duration", "t_CAV (dur.)")]
 
 
-def suite_tables(folders: list[Path]) -> str:
-    """Markdown: a table per (network, task config), a row per algorithm, mean ± std over seeds."""
-    return runs_tables(collect_folders(folders))
-
-
 def runs_tables(runs: pd.DataFrame) -> str:
-    """`suite_tables` of runs already read (`collect_folders` rows, or a ledger's)."""
+    """Markdown: a table per (network, task config), a row per algorithm, mean ± sample std over seeds,
+    of runs read by `collect_folders` (or a ledger's rows)."""
     if runs.empty:
         return ""
     table = aggregate(runs)
@@ -49,6 +47,57 @@ def runs_tables(runs: pd.DataFrame) -> str:
             out.append("| " + " | ".join(cells) + " |")
         out.append("")
     return "\n".join([*out, LEGEND, ""])
+
+
+BASELINE_PREFIX = "baseline_"
+AGAINST = (("t_pre", "the humans before (t_pre)"), ("baseline_aon", "AON"), ("baseline_random", "random"))
+AGAINST_TEXT = (
+    "Each trained run's t_CAV (travel time, per seed) against what its CAVs could have had instead: the "
+    "humans' own mean before the CAVs came (t_pre; per-seed differences, a one-sample t-test) and the "
+    "AON and random baselines of the same network and task (each one run, counted as a constant; "
+    "Welch's t-test). **lower** / **higher**: significant at 5% two-sided; **tie**: the difference is "
+    "inside the seeds' spread. Differences in minutes with their 95% t-interval.")
+
+
+def baseline_comparisons(runs: pd.DataFrame) -> str:
+    """Markdown: a row per trained run (its seeds) of each (network, task) with baselines, its t_CAV
+    against t_pre, AON's and random's, each a verdict (`verdicts.order`); "" where there is none."""
+    if runs.empty or "t_CAV" not in runs:
+        return ""
+    head = ["network, task", "run", "seeds", "t_CAV", *[name for _, name in AGAINST]]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for (net, task), group in runs.groupby(["network", "task_config"], sort=True):
+        alg = group["alg"].fillna("").astype(str)
+        base = {name: pd.to_numeric(g["t_CAV"], errors="coerce").dropna().tolist()
+                for name, g in group[alg.str.startswith(BASELINE_PREFIX)].groupby(alg)}
+        for _, seeds in group[~alg.str.startswith(BASELINE_PREFIX)].groupby(KEYS, sort=True):
+            t_cav = pd.to_numeric(seeds["t_CAV"], errors="coerce").tolist()
+            cells = [f"{net}, {task}", run_label(seeds.iloc[0]), str(len(seeds)), _mean_sd(t_cav)]
+            for against, _ in AGAINST:
+                cells.append(_against(t_cav, seeds, against, base))
+            out.append("| " + " | ".join(cells) + " |")
+    return "\n".join([AGAINST_TEXT, "", *out]) if len(out) > 2 else ""
+
+
+def _against(t_cav: list[float], seeds: pd.DataFrame, against: str, base: dict[str, list[float]]) -> str:
+    if against == "t_pre":
+        d = paired(t_cav, pd.to_numeric(seeds["t_pre"], errors="coerce").tolist())
+    elif base.get(against):
+        d = welch(Sample.of(t_cav), Sample.of(base[against]))
+    else:
+        return "not run"
+    kind = order(d).kind
+    if d.se == 0:
+        return f"**{kind}** {d.diff:+.4f} (no spread: by value)"
+    lo, hi = d.interval(0.95)
+    p = d.p_two()
+    p_text = "p < 0.001" if p < 0.001 else f"p = {p:.3f}"
+    return f"**{kind}** {d.diff:+.4f} [{lo:+.4f}, {hi:+.4f}], {p_text}"
+
+
+def _mean_sd(values: list[float]) -> str:
+    sample = Sample.of(values)
+    return f"{sample.mean:.4f}" + (f" ± {sample.sd:.4f}" if sample.n > 1 else "")
 
 
 def wall_times_table(folders: list[Path]) -> str:

@@ -35,7 +35,7 @@ from urb_jax.reporting.paper import (
     read_ledger,
 )
 from urb_jax.reporting.provenance import PROVENANCE, provenance
-from urb_jax.reporting.suite_report import suite_figures, suite_tables, wall_times_table
+from urb_jax.reporting.suite_report import baseline_comparisons, runs_tables, suite_figures, wall_times_table
 from urb_jax.reporting.travel_figures import PREFIX, NetworkFigure, network_figures
 from urb_jax.runs.baseline import run_baseline
 from urb_jax.runs.folder import CONFIG_FILE, run_status, run_writer, train_run_names
@@ -214,7 +214,11 @@ def write_report(title: str, folders: list[Path], out_dir: str | Path, preamble:
     """`out_dir/README.md` (the tables, figure links) and `out_dir/figures/*.png`, written atomically."""
     out_dir = Path(out_dir)
     figures = suite_figures(folders, out_dir / "figures")
-    text = [f"# {title}", "", preamble, "", suite_tables(folders), "## Wall time", "",
+    runs = collect_folders(folders)
+    against = baseline_comparisons(runs)
+    text = [f"# {title}", "", preamble, "", runs_tables(runs),
+            *(["## Against the humans and the baselines", "", against, ""] if against else []),
+            "## Wall time", "",
             "Each run's wall time where it was made (seeds trained together share one), from its "
             "exp_config.json:", "", wall_times_table(folders), "", "## Figures", ""]
     text += [f"![{p.stem}](figures/{p.name})" for p in figures]

@@ -1,0 +1,52 @@
+"""The suite report's statistics: sample std in its tables, each trained run against the humans and
+the baselines (hand-computed cases)."""
+
+from __future__ import annotations
+
+import math
+
+import pandas as pd
+import pytest
+
+from urb_jax.reporting.leaderboard import KEYS, aggregate
+from urb_jax.reporting.suite_report import baseline_comparisons
+
+
+def _runs(rows: list[tuple[str, float, float]], net: str = "gotham") -> pd.DataFrame:
+    """Runs of one network and task: (alg, t_CAV, t_pre) each, with the leaderboard's keys."""
+    out = []
+    for alg, t_cav, t_pre in rows:
+        base = alg.startswith("baseline_")
+        out.append({"network": net, "algorithm": alg.removeprefix("baseline_"), "alg": alg,
+                    "script": "urb-jax", "alg_config": "none" if base else "config1",
+                    "task_config": "config1", "env_config": "config1",
+                    "exp_type": "baseline" if base else "train", "winrate": 1.0,
+                    "t_CAV": t_cav, "t_pre": t_pre})
+    return pd.DataFrame(out)
+
+
+def test_aggregate_gives_the_sample_std_and_zero_for_one_run():
+    runs = _runs([("iql_star", 3.0, 3.2), ("iql_star", 3.2, 3.2), ("baseline_aon", 3.1, 3.2)])
+    table = aggregate(runs, metrics=["t_CAV"]).set_index("alg")
+    assert table.loc["iql_star", "t_CAV_std"] == pytest.approx(math.sqrt(0.02))  # ddof=1 (ddof=0: 0.1)
+    assert table.loc["baseline_aon", "t_CAV_std"] == 0.0
+
+
+def test_each_trained_run_against_the_humans_and_the_baselines():
+    """3 seeds at 3.00, 3.01, 3.02 (sd 0.01, se 0.00577, df 2, t(0.975) = 4.303): against t_pre 3.20
+    -0.1900 [-0.2148, -0.1652] lower; against AON 3.015 (one run, a constant) -0.0050, t = -0.866,
+    two-sided p = 1 - |t| / sqrt(t^2 + 2) = 0.478 (df 2): tie; random is not run."""
+    runs = _runs([("iql_star", 3.00, 3.2), ("iql_star", 3.01, 3.2), ("iql_star", 3.02, 3.2),
+                  ("baseline_aon", 3.015, 3.2)])
+    text = baseline_comparisons(runs)
+    [row] = [line for line in text.splitlines() if line.startswith("| gotham")]
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[:4] == ["gotham, config1", "iql_star", "3", "3.0100 ± 0.0100"]
+    assert cells[4] == "**lower** -0.1900 [-0.2148, -0.1652], p < 0.001"
+    assert cells[5] == "**tie** -0.0050 [-0.0298, +0.0198], p = 0.478"
+    assert cells[6] == "not run"
+    assert set(KEYS) <= set(runs.columns)
+
+
+def test_no_trained_run_no_section():
+    assert baseline_comparisons(_runs([("baseline_aon", 3.0, 3.2), ("baseline_random", 3.5, 3.2)])) == ""
