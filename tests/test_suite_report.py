@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from urb_jax.reporting.leaderboard import KEYS, aggregate
-from urb_jax.reporting.suite_report import baseline_comparisons
+from urb_jax.reporting.suite_report import against_humans_figure, against_humans_points, baseline_comparisons
 
 
 def _runs(rows: list[tuple[str, float, float]], net: str = "gotham") -> pd.DataFrame:
@@ -50,3 +50,20 @@ def test_each_trained_run_against_the_humans_and_the_baselines():
 
 def test_no_trained_run_no_section():
     assert baseline_comparisons(_runs([("baseline_aon", 3.0, 3.2), ("baseline_random", 3.5, 3.2)])) == ""
+
+
+def test_the_summary_figure_draws_each_run_against_t_pre(tmp_path):
+    """t_CAV - t_pre per run: the 3 seeds' -0.19 with the interval of the test above, AON's -0.185 as
+    one value (no interval); two networks, each its own group."""
+    runs = pd.concat([_runs([("iql_star", 3.00, 3.2), ("iql_star", 3.01, 3.2), ("iql_star", 3.02, 3.2),
+                             ("baseline_aon", 3.015, 3.2)]),
+                      _runs([("baseline_aon", 2.5, 2.4)], net="metropolis")], ignore_index=True)
+    points = against_humans_points(runs).set_index(["network", "run"])
+    iql = points.loc[("gotham", "iql_star")]
+    assert (iql["seeds"], iql["mean"], iql["lo"], iql["hi"]) == pytest.approx((3, -0.19, -0.2148, -0.1652),
+                                                                               abs=1e-4)
+    aon = points.loc[("gotham", "baseline_aon"), ["mean", "lo", "hi"]].tolist()
+    assert aon == pytest.approx([-0.185] * 3)
+    assert points.loc[("metropolis", "baseline_aon"), "mean"] == pytest.approx(0.1)
+    path = against_humans_figure(against_humans_points(runs), tmp_path / "against.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -145,8 +145,56 @@ def per_day_means(folder: Path) -> tuple[pd.DataFrame, int, int]:
     return per_day, H, T
 
 
+AGAINST_FIGURE = "against_the_humans"
+
+
+def against_humans_points(runs: pd.DataFrame) -> pd.DataFrame:
+    """[network, task, run, seeds, mean, lo, hi]: each run's t_CAV - t_pre (minutes; below 0 its CAVs
+    beat what the humans drove before them), the mean over seeds with its 95% t-interval (one run:
+    its value); what the suite's summary figure draws."""
+    rows = []
+    for (net, task), group in runs.groupby(["network", "task_config"], sort=True):
+        for _, seeds in group.groupby(KEYS, sort=True):
+            d = paired(pd.to_numeric(seeds["t_CAV"], errors="coerce").tolist(),
+                       pd.to_numeric(seeds["t_pre"], errors="coerce").tolist())
+            lo, hi = d.interval(0.95)
+            rows.append({"network": net, "task": task, "run": run_label(seeds.iloc[0]), "seeds": len(seeds),
+                         "mean": d.diff, "lo": lo, "hi": hi})
+    return pd.DataFrame(rows, columns=["network", "task", "run", "seeds", "mean", "lo", "hi"])
+
+
+def against_humans_figure(points: pd.DataFrame, path: Path) -> Path:
+    """Every run's t_CAV - t_pre per network (`against_humans_points`), one marker per run, 95%
+    intervals as bars, 0 (the humans' own time) as a line."""
+    import matplotlib.pyplot as plt
+
+    tasks = points["task"].nunique() > 1
+    groups = sorted({(n, t) for n, t in zip(points["network"], points["task"], strict=True)})
+    x = {g: i for i, g in enumerate(groups)}
+    labels = sorted(points["run"].unique())
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(groups) + 2), 4.5))
+    for j, run in enumerate(labels):
+        sel = points[points["run"] == run]
+        xs = [x[(n, t)] + (j - (len(labels) - 1) / 2) * 0.18 for n, t in zip(sel["network"], sel["task"],
+                                                                           strict=True)]
+        err = [sel["mean"] - sel["lo"], sel["hi"] - sel["mean"]]
+        ax.errorbar(xs, sel["mean"], yerr=err, fmt="o", capsize=3, label=run)
+    ax.axhline(0.0, color="grey", lw=1, ls="--")
+    ax.set_xticks(range(len(groups)), [f"{n}\n({t})" if tasks else n for n, t in groups], rotation=30,
+                  ha="right", fontsize=8)
+    ax.set_ylabel("t_CAV - t_pre (min)")
+    ax.set_title("Each run's CAVs against the humans before them (below 0: faster)\n"
+                 "mean over seeds with its 95% interval", fontsize=10)
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def suite_figures(folders: list[Path], out_dir: Path) -> list[Path]:
-    """One PNG per (network, algorithm, task): the seeds' per-day group means, averaged."""
+    """The runs against the humans (`against_humans_figure`), then one PNG per (network, algorithm,
+    task): the seeds' per-day group means, averaged."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -157,6 +205,7 @@ def suite_figures(folders: list[Path], out_dir: Path) -> list[Path]:
     written: list[Path] = []
     if runs.empty:
         return written
+    written.append(against_humans_figure(against_humans_points(runs), out_dir / f"{AGAINST_FIGURE}.png"))
     for key, g in runs.groupby(KEYS, sort=True):
         r = dict(zip(KEYS, key, strict=True))
         label = run_label(g.iloc[0])
