@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from urb_jax.reporting.drift import ERROR_COLUMN, ROUNDS_FILE, TRUSTED, late_day_error
 from urb_jax.reporting.leaderboard import KEYS, aggregate, collect_folders
 from urb_jax.reporting.records import plot_phases, read_records
 from urb_jax.reporting.train_days import LEGEND, days_cell
@@ -56,7 +57,10 @@ AGAINST_TEXT = (
     "humans' own mean before the CAVs came (t_pre; per-seed differences, a one-sample t-test) and the "
     "AON and random baselines of the same network and task (each one run, counted as a constant; "
     "Welch's t-test). **lower** / **higher**: significant at 5% two-sided; **tie**: the difference is "
-    "inside the seeds' spread. Differences in minutes with their 95% t-interval.")
+    "inside the seeds' spread. Differences in minutes with their 95% t-interval. The surrogate's late "
+    "day error: how far the surrogate the policies trained on predicted the run's own SUMO training "
+    "days in the last half of its rounds (rounds.csv `surrogate_mean_error`, mean over seeds); beyond "
+    f"±{TRUSTED:.0%} the surrogate did not follow the network and the result rests on the SUMO days.")
 
 
 def baseline_comparisons(runs: pd.DataFrame) -> str:
@@ -64,7 +68,8 @@ def baseline_comparisons(runs: pd.DataFrame) -> str:
     against t_pre, AON's and random's, each a verdict (`verdicts.order`); "" where there is none."""
     if runs.empty or "t_CAV" not in runs:
         return ""
-    head = ["network, task", "run", "seeds", "t_CAV", *[name for _, name in AGAINST]]
+    head = ["network, task", "run", "seeds", "t_CAV", "surrogate's late day error",
+            *[name for _, name in AGAINST]]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for (net, task), group in runs.groupby(["network", "task_config"], sort=True):
         alg = group["alg"].fillna("").astype(str)
@@ -72,11 +77,27 @@ def baseline_comparisons(runs: pd.DataFrame) -> str:
                 for name, g in group[alg.str.startswith(BASELINE_PREFIX)].groupby(alg)}
         for _, seeds in group[~alg.str.startswith(BASELINE_PREFIX)].groupby(KEYS, sort=True):
             t_cav = pd.to_numeric(seeds["t_CAV"], errors="coerce").tolist()
-            cells = [f"{net}, {task}", run_label(seeds.iloc[0]), str(len(seeds)), _mean_sd(t_cav)]
+            cells = [f"{net}, {task}", run_label(seeds.iloc[0]), str(len(seeds)), _mean_sd(t_cav),
+                     _late_error(seeds)]
             for against, _ in AGAINST:
                 cells.append(_against(t_cav, seeds, against, base))
             out.append("| " + " | ".join(cells) + " |")
     return "\n".join([AGAINST_TEXT, "", *out]) if len(out) > 2 else ""
+
+
+def _late_error(seeds: pd.DataFrame) -> str:
+    """The seeds' mean late day error of the surrogate (`drift.late_day_error` of each rounds.csv)."""
+    errors = []
+    for folder in seeds.get("folder", pd.Series(dtype=str)):
+        rounds = Path(folder) / ROUNDS_FILE
+        if rounds.is_file():
+            table = pd.read_csv(rounds)
+            if ERROR_COLUMN in table and (e := late_day_error(table[ERROR_COLUMN].tolist())) is not None:
+                errors.append(e)
+    if not errors:
+        return "n/a"
+    mean = sum(errors) / len(errors)
+    return f"{mean:+.1%}" + (f", beyond ±{TRUSTED:.0%}" if abs(mean) > TRUSTED else "")
 
 
 def _against(t_cav: list[float], seeds: pd.DataFrame, against: str, base: dict[str, list[float]]) -> str:

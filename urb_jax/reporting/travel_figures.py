@@ -31,6 +31,7 @@ import pandas as pd
 
 from urb_jax.core.atomic import write_bytes
 from urb_jax.core.errors import UrbJaxError
+from urb_jax.reporting.drift import ROUNDS_FILE
 from urb_jax.reporting.records import read_records
 from urb_jax.reporting.verdicts import t_ppf
 
@@ -188,7 +189,7 @@ def read_run(folder: Path, window: int) -> RunDays:
     """A finished train run's folder as RunDays (records: day, phase, agent, kind, travel_time)."""
     cfg = json.loads((folder / "exp_config.json").read_text())
     t_pre = float(pd.read_csv(folder / "metrics" / "BenchmarkMetrics.csv")["t_pre"].iloc[0])
-    rounds_file = folder / "rounds.csv"
+    rounds_file = folder / ROUNDS_FILE
     rounds = pd.read_csv(rounds_file) if rounds_file.is_file() else None
     schedule = schedule_of(cfg, rounds)
     records = read_records(folder, columns=["day", "phase", "agent", "kind", "travel_time"])

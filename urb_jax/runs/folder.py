@@ -24,6 +24,7 @@ from urb_jax.core.atomic import umask, write_bytes
 from urb_jax.core.errors import UrbJaxError
 from urb_jax.core.interrupt import at_hard_exit
 from urb_jax.core.paths import os_reason
+from urb_jax.reporting.drift import ERROR_COLUMN, ROUNDS_FILE
 from urb_jax.reporting.records import (
     CONFIG_FILE,
     remove_parts,
@@ -34,7 +35,6 @@ from urb_jax.reporting.records import (
 )
 from urb_jax.reporting.urb_names import phase_keys
 
-ROUNDS_FILE = "rounds.csv"  # a hybrid run's per-round log (`write_rounds`)
 log = logging.getLogger(__name__)
 
 
@@ -303,7 +303,7 @@ def write_rounds(folder: Path, rounds: list[dict[str, float]]) -> None:
     """rounds.csv (per round: surrogate and SUMO days, times, surrogate error) and its plot."""
     df = pd.DataFrame(rounds)
     write_bytes(folder / ROUNDS_FILE, df.to_csv(index=False).encode())
-    if "surrogate_mean_error" not in df:
+    if ERROR_COLUMN not in df:
         return
     import matplotlib  # imported by the runs that plot; the Agg backend is chosen before pyplot loads
 
@@ -311,7 +311,7 @@ def write_rounds(folder: Path, rounds: list[dict[str, float]]) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4))
-    ax.plot(df["round"], 100 * df["surrogate_mean_error"], label="error of the day mean (%)")
+    ax.plot(df["round"], 100 * df[ERROR_COLUMN], label="error of the day mean (%)")
     ax.plot(df["round"], 100 * df["surrogate_mape"], label="per agent-day MAPE (%)")
     ax.axhline(0, color="grey", lw=0.5)
     ax.set_xlabel("round")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -24,6 +25,7 @@ from urb_jax.core.paths import day_store_bytes
 from urb_jax.core.phase import enter_phase
 from urb_jax.core.progress import Progress
 from urb_jax.game.config import TaskConfig
+from urb_jax.reporting.drift import drift_warning
 from urb_jax.reporting.records import check_run_network, networks_dir_of, remove_parts
 from urb_jax.reporting.urb_names import names_of, train_names
 from urb_jax.runs.folder import (
@@ -83,6 +85,8 @@ from urb_jax.training.human_phase import (
 )
 from urb_jax.training.hybrid.plan import HybridConfig
 from urb_jax.training.hybrid.trainer import Stopped, TrainSummary, check_group_records, train_group
+
+log = logging.getLogger(__name__)
 
 
 def make_executor(hyb: HybridConfig, log_dir: Path, kind: str = "pool",
@@ -379,6 +383,8 @@ def _finish_group(folders: list[Path], configs: list[dict[str, Any]], result: li
 def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H: int,
                   wall: float) -> RunResult:
     T = summary.sumo_training_days
+    if (warning := drift_warning(summary.surrogate_late_error)) is not None:
+        log.warning("%s: %s", folder.name, warning)  # also in the run's run.log
     enter_phase("the metric files")
     metrics, phases = write_outputs(folder, H, T, hybrid=summary.surrogate_days > 0)
     write_rounds(folder, summary.rounds)
@@ -386,7 +392,7 @@ def _finish_train(folder: Path, config: dict[str, Any], summary: TrainSummary, H
               sumo_training_days=T,
               surrogate_training_days=summary.surrogate_days, rounds=summary.n_rounds,
               alg_config_values=summary.alg_config, aon_same_humans=summary.aon_same_humans,
-              seed_axis_used=summary.seed_axis)
+              seed_axis_used=summary.seed_axis, surrogate_late_error=summary.surrogate_late_error)
     drop_journal(folder.parent, config)
     return RunResult(folder, metrics, wall, summary=summary)
 

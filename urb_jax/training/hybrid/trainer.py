@@ -37,6 +37,7 @@ from urb_jax.game.demand import DepartureJitter, scenario_on_day
 from urb_jax.game.env import EnvState, RoutingEnv
 from urb_jax.game.humans import HumanState, aon_routes, init_humans
 from urb_jax.game.mutation import draw_cavs, split_fleets
+from urb_jax.reporting.drift import ERROR_COLUMN, late_day_error
 from urb_jax.reporting.records import (
     PARTS_DIR,
     DayRecord,
@@ -154,6 +155,7 @@ class TrainSummary:
     seeds_together: int
     aon_same_humans: dict[str, float]
     seed_axis: str  # how the group's seeds shared the program: "vmap" or "map"
+    surrogate_late_error: float | None  # hybrid: the surrogate's late day error (reporting.drift)
 
 
 @dataclass(frozen=True)
@@ -635,7 +637,9 @@ class HybridTrainer:
         g, plan = self.g, self.g.plan
         return [TrainSummary(log, g.H, plan.total_sumo_days, plan.n_rounds,
                              plan.total_surrogate_days, dataclasses.asdict(g.alg_config), g.S, aon,
-                             "map" if g.seed_map else "vmap")
+                             "map" if g.seed_map else "vmap",
+                             late_day_error([row.get(ERROR_COLUMN, math.nan) for row in log])
+                             if g.mode == "hybrid" else None)
                 for log in self.rounds_logs]
 
 
@@ -796,7 +800,7 @@ def sumo_row(t: np.ndarray, pred: np.ndarray, P: int, dt: float, is_cav: np.ndar
     day_error = np.nanmean(pred_went, 1) - np.nanmean(t, 1)  # [P]
     return {"sumo_days": P, "sumo_s": dt, "sumo_time_cav": _group_mean(t[:, cav_index], np.nanmean),
             "sumo_time_hdv": _group_mean(t[:, ~is_cav], np.nanmean),
-            "surrogate_mean_error": float(day_error.mean() / np.nanmean(t)),
+            ERROR_COLUMN: float(day_error.mean() / np.nanmean(t)),
             "surrogate_mape": float(np.nanmean(np.abs(pred_went - t) / t))}
 
 
