@@ -4,10 +4,12 @@ the baselines (hand-computed cases)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pandas as pd
 import pytest
 
+from urb_jax.reporting.drift import ERROR_COLUMN, ROUNDS_FILE
 from urb_jax.reporting.leaderboard import KEYS, aggregate
 from urb_jax.reporting.suite_report import against_humans_figure, against_humans_points, baseline_comparisons
 
@@ -41,10 +43,10 @@ def test_each_trained_run_against_the_humans_and_the_baselines():
     text = baseline_comparisons(runs)
     [row] = [line for line in text.splitlines() if line.startswith("| gotham")]
     cells = [c.strip() for c in row.strip("|").split("|")]
-    assert cells[:4] == ["gotham, config1", "iql_star", "3", "3.0100 ± 0.0100"]
-    assert cells[4] == "**lower** -0.1900 [-0.2148, -0.1652], p < 0.001"
-    assert cells[5] == "**tie** -0.0050 [-0.0298, +0.0198], p = 0.478"
-    assert cells[6] == "not run"
+    assert cells[:5] == ["gotham, config1", "iql_star", "3", "3.0100 ± 0.0100", "n/a"]  # no rounds.csv
+    assert cells[5] == "**lower** -0.1900 [-0.2148, -0.1652], p < 0.001"
+    assert cells[6] == "**tie** -0.0050 [-0.0298, +0.0198], p = 0.478"
+    assert cells[7] == "not run"
     assert set(KEYS) <= set(runs.columns)
 
 
@@ -67,3 +69,29 @@ def test_the_summary_figure_draws_each_run_against_t_pre(tmp_path):
     assert points.loc[("metropolis", "baseline_aon"), "mean"] == pytest.approx(0.1)
     path = against_humans_figure(against_humans_points(runs), tmp_path / "against.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_surrogates_late_error_beside_each_run(tmp_path):
+    """Each seed's late error (the last half of its rounds), their mean, flagged beyond ±5%."""
+    runs = _runs([("iql_star", 3.00, 3.2), ("iql_star", 3.01, 3.2)])
+    folders = []
+    for seed, errors in enumerate(([-0.30, -0.20, -0.10, -0.12], [-0.05, -0.16, -0.18, -0.20])):
+        folder = tmp_path / f"s{seed}"
+        folder.mkdir()
+        _write_rounds(folder, errors)
+        folders.append(str(folder))
+    cell = _row_cells(baseline_comparisons(runs.assign(folder=folders)))[4]
+    assert cell == "-15.0%, beyond ±5%"  # (-0.11 + -0.19) / 2
+    for folder in folders:
+        _write_rounds(Path(folder), [0.01, 0.002, -0.001, 0.003])
+    assert _row_cells(baseline_comparisons(runs.assign(folder=folders)))[4] == "+0.1%"
+
+
+def _write_rounds(folder: Path, errors: list[float]) -> None:
+    pd.DataFrame({"round": range(1, len(errors) + 1), ERROR_COLUMN: errors}).to_csv(folder / ROUNDS_FILE,
+                                                                                   index=False)
+
+
+def _row_cells(text: str) -> list[str]:
+    [row] = [line for line in text.splitlines() if line.startswith("| gotham")]
+    return [c.strip() for c in row.strip("|").split("|")]
