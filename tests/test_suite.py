@@ -73,8 +73,10 @@ def test_suite_resumes_skips_and_reports(tmp_path):
     assert (f"| urb_grid | iql_star | 2 | {iql['wall_time_s']:.0f} s | {iql['human_phase_s']:.0f} s |"
             in text), text
     assert f"| urb_grid | baseline_aon | 1 | {walls['aon']['wall_time_s']:.0f} s |  |" in text
+    # the trained run against the humans and AON (its two seeds), and every run drawn against t_pre
+    assert "## Against the humans and the baselines" in text and "| urb_grid, test | iql_star | 2 |" in text
     assert sorted(p.name for p in (tmp_path / "report" / "figures").iterdir()) == [
-        "urb_grid_baseline_aon_test.png", "urb_grid_iql_star_test.png"]
+        "against_the_humans.png", "urb_grid_baseline_aon_test.png", "urb_grid_iql_star_test.png"]
 
 
 def test_a_run_another_process_is_writing_is_running_not_stopped(tmp_path):
