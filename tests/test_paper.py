@@ -346,6 +346,9 @@ def test_the_page_keeps_the_runs_of_earlier_generations(tmp_path, monkeypatch, c
     from urb_jax.commands.cli import main
 
     monkeypatch.setattr(suite, "write_report", _fake_report)
+    drawn: dict[str, pd.DataFrame] = {}  # each entry's figure against the humans: what it drew
+    monkeypatch.setattr(suite, "against_humans_figure",
+                        lambda points, path: drawn.__setitem__(path.parent.name, points) or path)
     ippo = train_names("ippo", "hybrid", "default", 6000, "config1")
     first, second, docs = tmp_path / "machine1", tmp_path / "machine2", tmp_path / "docs"
     for seed in range(5):
@@ -382,6 +385,11 @@ def test_the_page_keeps_the_runs_of_earlier_generations(tmp_path, monkeypatch, c
     assert "2.7600" in provins
     figures = sorted(p.name for p in (docs / "paper_figures" / "scenario1").iterdir())
     assert figures == ["provins.png", "saint_arnoult.png"]  # machine 1's figure kept, machine 2's added
+    # the figure against the humans draws every shown run: machine 1's IPPO (the ledger's) too
+    points = drawn["scenario1"].set_index(["network", "run"])
+    assert points.loc[("saint_arnoult", "ippo"), "seeds"] == 5
+    assert points.loc[("saint_arnoult", "ippo"), "mean"] == pytest.approx(3.22 - 3.19)
+    assert points.loc[("provins", "baseline_aon"), "mean"] == pytest.approx(2.80 - 2.84)
     assert (docs / "paper_figures" / "scenario1" / "saint_arnoult.png").read_bytes() == b"saint_arnoult"
     for name in ("provins", "saint_arnoult"):
         assert f"paper_figures/scenario1/{name}.png" in page2
@@ -470,6 +478,9 @@ def test_the_finished_seeds_of_an_unfinished_run_outlive_their_machine(tmp_path,
     from urb_jax.commands.cli import main
 
     monkeypatch.setattr(suite, "write_report", _fake_report)
+    drawn: dict[str, pd.DataFrame] = {}  # each entry's figure against the humans: what it drew
+    monkeypatch.setattr(suite, "against_humans_figure",
+                        lambda points, path: drawn.__setitem__(path.parent.name, points) or path)
     ippo = train_names("ippo", "hybrid", "default", 6000, "config1")
     first, second, docs = tmp_path / "machine1", tmp_path / "machine2", tmp_path / "docs"
     for seed in (0, 1):  # machine 1 ends after 2 of the run's 5 seeds

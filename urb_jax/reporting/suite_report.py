@@ -187,13 +187,16 @@ def against_humans_points(runs: pd.DataFrame) -> pd.DataFrame:
 def against_humans_figure(points: pd.DataFrame, path: Path) -> Path:
     """Every run's t_CAV - t_pre per network (`against_humans_points`), one marker per run, 95%
     intervals as bars, 0 (the humans' own time) as a line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     tasks = points["task"].nunique() > 1
     groups = sorted({(n, t) for n, t in zip(points["network"], points["task"], strict=True)})
     x = {g: i for i, g in enumerate(groups)}
     labels = sorted(points["run"].unique())
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(groups) + 2), 4.5))
+    fig, ax = plt.subplots(figsize=(max(7.0, 1.1 * len(groups) + 3.5), 4.5))
     for j, run in enumerate(labels):
         sel = points[points["run"] == run]
         xs = [x[(n, t)] + (j - (len(labels) - 1) / 2) * 0.18 for n, t in zip(sel["network"], sel["task"],
@@ -206,7 +209,7 @@ def against_humans_figure(points: pd.DataFrame, path: Path) -> Path:
     ax.set_ylabel("t_CAV - t_pre (min)")
     ax.set_title("Each run's CAVs against the humans before them (below 0: faster)\n"
                  "mean over seeds with its 95% interval", fontsize=10)
-    ax.legend(fontsize=8, loc="best")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

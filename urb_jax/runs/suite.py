@@ -35,7 +35,15 @@ from urb_jax.reporting.paper import (
     read_ledger,
 )
 from urb_jax.reporting.provenance import PROVENANCE, provenance
-from urb_jax.reporting.suite_report import baseline_comparisons, runs_tables, suite_figures, wall_times_table
+from urb_jax.reporting.suite_report import (
+    AGAINST_FIGURE,
+    against_humans_figure,
+    against_humans_points,
+    baseline_comparisons,
+    runs_tables,
+    suite_figures,
+    wall_times_table,
+)
 from urb_jax.reporting.travel_figures import PREFIX, NetworkFigure, network_figures
 from urb_jax.runs.baseline import run_baseline
 from urb_jax.runs.folder import CONFIG_FILE, run_status, run_writer, train_run_names
@@ -345,6 +353,9 @@ def _entry_results(entry: str, results_dir: Path, figures_dir: Path, ledger: pd.
         report = write_report(spec.title, folders, results_dir / f"suite_{entry}", spec.preamble)
         for png in sorted((report.parent / "figures").glob("*.png")):
             write_bytes(figures_dir / entry / png.name, png.read_bytes())
+    if not runs.empty:  # every shown run, the ledger's too (the suite report's has those here only)
+        (figures_dir / entry).mkdir(parents=True, exist_ok=True)
+        against_humans_figure(against_humans_points(runs), figures_dir / entry / f"{AGAINST_FIGURE}.png")
     travel: tuple[NetworkFigure, ...] = ()
     if figure:
         nets = list(dict.fromkeys(str(r.kwargs["net"]) for r in spec.runs if r.kind == "train"))
