@@ -143,31 +143,38 @@ def uncalibrated(static: Static) -> Params:
 
 
 def fit_with_bias(start: Params, static: Static, sub: SumoSample, fit: FitConfig, full: SumoSample,
-                  prior_days: float | None) -> Params:
-    """Gradient fit of the smooth model on `sub`, then the per-route residual (`route_bias`) on every
-    day of `full`; `prior_days` None: no residual correction (zeros)."""
+                  prior_days: float | None, removed: bool = False) -> Params:
+    """Gradient fit of the smooth model on `sub`, then the per-route residual (`route_bias`, with
+    `removed`) on every day of `full`; `prior_days` None: no residual correction (zeros)."""
     fitted = fit_params(without_bias(start), static, sub, fit)
-    bias = (route_bias(fitted, static, full, prior_days) if prior_days is not None
+    bias = (route_bias(fitted, static, full, prior_days, removed) if prior_days is not None
             else jnp.zeros((static.n, static.k), jnp.float32))
     return {**fitted, "route_bias": bias}
 
 
-def route_bias(params: Params, static: Static, sample: SumoSample, prior_days: float) -> jax.Array:
+def route_bias(params: Params, static: Static, sample: SumoSample, prior_days: float,
+               removed: bool = False) -> jax.Array:
     """[N, K] minutes: each (agent, route)'s mean SUMO residual over the days it was driven,
     shrunk toward 0 as `count / (count + prior_days)`.
 
     The smooth model cannot represent every queue SUMO forms; a policy trained on it keeps
     choosing routes whose SUMO time it underestimates. Correcting exactly the (agent, route)
     pairs SUMO has measured makes those routes look as they drove, while unseen routes keep the
-    model's estimate (so the policy still tries them, and the next SUMO days measure them)."""
+    model's estimate (so the policy still tries them, and the next SUMO days measure them).
+    `removed`: a day the vehicle was removed as stuck counts too, at the time charged for it (what
+    the metrics count), so a route that gets its drivers stuck looks as costly as it is scored;
+    otherwise only arrivals count (the smooth model's fit never sees removals)."""
     pred = predict_bucketed(without_bias(params), static, sample.choices, sample.shift)  # [D, N], D grows
-    res = np.where(sample.arrived, sample.travel_time - pred, 0.0)
+    drove = sample.arrived
+    if removed:  # a removed vehicle has a finite charged time; a driver at home has NaN
+        drove = drove | (np.isfinite(sample.travel_time) & (sample.choices >= 0))
+    res = np.where(drove, sample.travel_time - pred, 0.0)
     n, k = static.n, static.k
     sums = np.zeros((n, k))
     counts = np.zeros((n, k))
     agents = np.broadcast_to(np.arange(n), sample.choices.shape)
     np.add.at(sums, (agents, sample.choices), res)
-    np.add.at(counts, (agents, sample.choices), sample.arrived)
+    np.add.at(counts, (agents, sample.choices), drove)
     denom = counts + prior_days
     out = np.divide(sums, denom, out=np.zeros_like(sums), where=denom > 0)  # undriven routes: 0
     return jnp.asarray(out, jnp.float32)

@@ -60,3 +60,28 @@ def test_predict_adds_the_bias_for_choices_and_probabilities(grid):
     delta = np.asarray(predict(with_b, static, probs)) - np.asarray(predict(params, static, probs))
     np.testing.assert_allclose(delta, (np.asarray(probs) * b[None]).sum(-1), atol=1e-4)
     assert set(without_bias(with_b)) == set(params)
+
+
+def test_removed_days_count_at_their_charged_time_when_asked(grid):
+    """Agent 3 was removed on day 2 with 20 min charged: left out by default, counted with `removed`;
+    a driver at home (ABSENT, NaN) never counts."""
+    scn, static, params = grid
+    sample, _ = _sample(scn, static, params)
+    times, choices = sample.travel_time.copy(), sample.choices.copy()
+    times[2, 3] = 20.0  # the time charged for the removal (sumo_bridge: elapsed until removed)
+    choices[1, 5], times[1, 5] = -1, np.nan  # at home on day 1
+    arrived = sample.arrived.copy()
+    arrived[1, 5] = False
+    jammed = SumoSample(choices, times, arrived)
+    pred = np.asarray(predict(params, static, jnp.asarray(np.maximum(choices, 0))))
+    prior, k = 2.0, choices[2, 3]
+    rows = [d for d in range(len(jammed)) if choices[d, 3] == k]  # day 2 among them
+    arrived_only = [d for d in rows if arrived[d, 3]]
+    plain = np.asarray(route_bias(params, static, jammed, prior))
+    counted = np.asarray(route_bias(params, static, jammed, prior, removed=True))
+    assert plain[3, k] == pytest.approx(sum(times[d, 3] - pred[d, 3] for d in arrived_only)
+                                        / (len(arrived_only) + prior), abs=1e-5)
+    assert counted[3, k] == pytest.approx(sum(times[d, 3] - pred[d, 3] for d in rows) / (len(rows) + prior),
+                                          abs=1e-5)
+    assert counted[3, k] > plain[3, k] + 1.0  # the stuck day makes the route look as costly as scored
+    np.testing.assert_array_equal(np.delete(counted, 3, axis=0), np.delete(plain, 3, axis=0))  # others

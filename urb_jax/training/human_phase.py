@@ -132,7 +132,8 @@ def calibrate(start: Params, static: Static, human: HumanPhase, cfg: HybridConfi
     then the route bias on the same days): what the hybrid trainer's round 0 trains on, and what an
     env for a policy trained outside urb-jax simulates (`urb_jax.interop.outside`)."""
     sample = SumoSample(human.calib_choices, human.calib_times, human.calib_arrived)
-    return fit_with_bias(start, static, sample, FitConfig(steps=cfg.calib_steps), sample, cfg.bias_prior)
+    return fit_with_bias(start, static, sample, FitConfig(steps=cfg.calib_steps), sample, cfg.bias_prior,
+                         cfg.route_bias_removed)
 
 
 def _varied_days(scn: Scenario, cfg: HybridConfig, executor: DayExecutor, env_seed: int, bar: Progress

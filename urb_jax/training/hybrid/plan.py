@@ -52,6 +52,9 @@ class HybridConfig:
     seed_axis: str = "auto"
     route_bias: bool = True  # correct the surrogate by SUMO's mean residual per (agent, route) driven
     route_bias_prior_days: float = ROUTE_BIAS_PRIOR_DAYS  # shrinkage: residual x count / (count + prior days)
+    # the residual also counts the days a driver was removed as stuck, at the time the metrics charge
+    # (surrogate.calibrate.route_bias); off: arrivals only. Matters where SUMO's days jam (gargenville)
+    route_bias_removed: bool = False
     reuse_identical_test_days: bool = True  # SUMO is deterministic: a repeated test day runs once
     # Training days after which the round checkpoint is kept rather than replaced by the next one:
     # snapshots of the learning curve, each evaluable later on the run's SUMO test days (a day count

@@ -597,7 +597,7 @@ class HybridTrainer:
     def fit(self, start: Params, sub: SumoSample, fit_cfg: FitConfig, full: SumoSample) -> Params:
         """Gradient fit of the smooth model on `sub`, then the per-route residual on all SUMO days."""
         g = self.g
-        return fit_with_bias(start, g.static, sub, fit_cfg, full, g.cfg.bias_prior)
+        return fit_with_bias(start, g.static, sub, fit_cfg, full, g.cfg.bias_prior, g.cfg.route_bias_removed)
 
     # ---- test
     def test(self) -> dict[str, float]:
