@@ -95,3 +95,19 @@ def _write_rounds(folder: Path, errors: list[float]) -> None:
 def _row_cells(text: str) -> list[str]:
     [row] = [line for line in text.splitlines() if line.startswith("| gotham")]
     return [c.strip() for c in row.strip("|").split("|")]
+
+
+def test_runs_that_differ_in_their_overrides_keep_apart():
+    """Two IQL* runs of one network, one with a --set: two rows, each named with its command, and so
+    is the IQL* run of another network (one name for one run across the report and its figure);
+    a name that stands for one run everywhere stays short."""
+    base = _runs([("iql_star", 3.00, 3.2), ("iql_star", 3.02, 3.2)])
+    other = _runs([("iql_star", 2.90, 3.2)]).assign(script="urb-jax --set hybrid.route_bias_removed=true")
+    alone = _runs([("iql_star", 2.5, 2.6)], net="metropolis")
+    text = baseline_comparisons(pd.concat([base, other, alone], ignore_index=True))
+    rows = [line for line in text.splitlines() if line.startswith("| gotham")]
+    assert [r.split("|")[2].strip() for r in rows] == [
+        "iql_star (config1; urb-jax)", "iql_star (config1; urb-jax --set hybrid.route_bias_removed=true)"]
+    assert [r.split("|")[3].strip() for r in rows] == ["2", "1"]
+    assert "| metropolis, config1 | iql_star (config1; urb-jax) | 1 |" in text
+    assert "| metropolis, config1 | iql_star | 1 |" in baseline_comparisons(alone)

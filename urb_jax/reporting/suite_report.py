@@ -7,6 +7,8 @@ background patches, as the URB paper's figures show them."""
 from __future__ import annotations
 
 import json
+import textwrap
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -71,13 +73,14 @@ def baseline_comparisons(runs: pd.DataFrame) -> str:
     head = ["network, task", "run", "seeds", "t_CAV", "surrogate's late day error",
             *[name for _, name in AGAINST]]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    labels = run_labels(runs)
     for (net, task), group in runs.groupby(["network", "task_config"], sort=True):
         alg = group["alg"].fillna("").astype(str)
         base = {name: pd.to_numeric(g["t_CAV"], errors="coerce").dropna().tolist()
                 for name, g in group[alg.str.startswith(BASELINE_PREFIX)].groupby(alg)}
-        for _, seeds in group[~alg.str.startswith(BASELINE_PREFIX)].groupby(KEYS, sort=True):
+        for key, seeds in group[~alg.str.startswith(BASELINE_PREFIX)].groupby(KEYS, sort=True):
             t_cav = pd.to_numeric(seeds["t_CAV"], errors="coerce").tolist()
-            cells = [f"{net}, {task}", run_label(seeds.iloc[0]), str(len(seeds)), _mean_sd(t_cav),
+            cells = [f"{net}, {task}", labels[key], str(len(seeds)), _mean_sd(t_cav),
                      _late_error(seeds)]
             for against, _ in AGAINST:
                 cells.append(_against(t_cav, seeds, against, base))
@@ -144,6 +147,18 @@ def _duration(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 600 else f"{seconds / 60:.1f} min"
 
 
+def run_labels(runs: pd.DataFrame) -> dict[tuple, str]:
+    """Each run group's (KEYS) name in a suite's comparisons: `run_label`, and where that name stands
+    for two runs of one network and task anywhere in `runs` (e.g. other `--set` overrides), with
+    its algorithm config and command, as the tables name them."""
+    groups = {key: g.iloc[0] for key, g in runs.groupby(KEYS, sort=True)}
+    names = {key: run_label(r) for key, r in groups.items()}
+    counts = Counter((r["network"], r["task_config"], names[k]) for k, r in groups.items())
+    ambiguous = {name for (_, _, name), n in counts.items() if n > 1}
+    return {key: f"{name} ({r['alg_config']}; {r['script']})" if (name := names[key]) in ambiguous else name
+            for key, r in groups.items()}
+
+
 def run_label(row: pd.Series) -> str:
     """A suite's row name: urb-jax's id (--alg, baseline_<model>); URB's name for URB's own runs."""
     return str(row.get("alg") or row["algorithm"])
@@ -174,12 +189,13 @@ def against_humans_points(runs: pd.DataFrame) -> pd.DataFrame:
     beat what the humans drove before them), the mean over seeds with its 95% t-interval (one run:
     its value); what the suite's summary figure draws."""
     rows = []
+    labels = run_labels(runs)
     for (net, task), group in runs.groupby(["network", "task_config"], sort=True):
-        for _, seeds in group.groupby(KEYS, sort=True):
+        for key, seeds in group.groupby(KEYS, sort=True):
             d = paired(pd.to_numeric(seeds["t_CAV"], errors="coerce").tolist(),
                        pd.to_numeric(seeds["t_pre"], errors="coerce").tolist())
             lo, hi = d.interval(0.95)
-            rows.append({"network": net, "task": task, "run": run_label(seeds.iloc[0]), "seeds": len(seeds),
+            rows.append({"network": net, "task": task, "run": labels[key], "seeds": len(seeds),
                          "mean": d.diff, "lo": lo, "hi": hi})
     return pd.DataFrame(rows, columns=["network", "task", "run", "seeds", "mean", "lo", "hi"])
 
@@ -202,7 +218,7 @@ def against_humans_figure(points: pd.DataFrame, path: Path) -> Path:
         xs = [x[(n, t)] + (j - (len(labels) - 1) / 2) * 0.18 for n, t in zip(sel["network"], sel["task"],
                                                                            strict=True)]
         err = [sel["mean"] - sel["lo"], sel["hi"] - sel["mean"]]
-        ax.errorbar(xs, sel["mean"], yerr=err, fmt="o", capsize=3, label=run)
+        ax.errorbar(xs, sel["mean"], yerr=err, fmt="o", capsize=3, label=textwrap.fill(run, 48))
     ax.axhline(0.0, color="grey", lw=1, ls="--")
     ax.set_xticks(range(len(groups)), [f"{n}\n({t})" if tasks else n for n, t in groups], rotation=30,
                   ha="right", fontsize=8)
@@ -211,7 +227,7 @@ def against_humans_figure(points: pd.DataFrame, path: Path) -> Path:
                  "mean over seeds with its 95% interval", fontsize=10)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
 
