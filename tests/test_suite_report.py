@@ -3,6 +3,7 @@ the baselines (hand-computed cases)."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -11,7 +12,12 @@ import pytest
 
 from urb_jax.reporting.drift import ERROR_COLUMN, ROUNDS_FILE
 from urb_jax.reporting.leaderboard import KEYS, aggregate
-from urb_jax.reporting.suite_report import against_humans_figure, against_humans_points, baseline_comparisons
+from urb_jax.reporting.suite_report import (
+    against_humans_figure,
+    against_humans_points,
+    baseline_comparisons,
+    wall_times_table,
+)
 
 
 def _runs(rows: list[tuple[str, float, float]], net: str = "gotham") -> pd.DataFrame:
@@ -111,3 +117,14 @@ def test_runs_that_differ_in_their_overrides_keep_apart():
     assert [r.split("|")[3].strip() for r in rows] == ["2", "1"]
     assert "| metropolis, config1 | iql_star (config1; urb-jax) | 1 |" in text
     assert "| metropolis, config1 | iql_star | 1 |" in baseline_comparisons(alone)
+
+
+def test_wall_times_keep_runs_with_other_overrides_apart(tmp_path):
+    runs = (("a_s0", 100.0, []), ("a_s1", 100.0, []), ("b_s0", 300.0, ["hybrid.sumo_days_per_round=16"]))
+    for name, wall, over in runs:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "exp_config.json").write_text(json.dumps(
+            {"network": "gotham", "alg": "iql_star", "wall_time_s": wall, "train_args": {"overrides": over}}))
+    text = wall_times_table(sorted(tmp_path.iterdir()))
+    assert "| gotham | iql_star | 2 | 100 s |  |" in text
+    assert "| gotham | iql_star --set hybrid.sumo_days_per_round=16 | 1 | 300 s |  |" in text

@@ -18,6 +18,7 @@ from urb_jax.reporting.drift import ERROR_COLUMN, ROUNDS_FILE, TRUSTED, late_day
 from urb_jax.reporting.leaderboard import KEYS, aggregate, collect_folders
 from urb_jax.reporting.records import plot_phases, read_records
 from urb_jax.reporting.train_days import LEGEND, days_cell
+from urb_jax.reporting.urb_names import overrides_of
 from urb_jax.reporting.verdicts import Sample, order, paired, welch
 
 TABLE_COLUMNS = [("t_pre", "t_pre"), ("t_CAV", "t_CAV"), ("t_HDV_test", "t_HDV"), ("t_test", "t_all"),
@@ -130,7 +131,8 @@ def wall_times_table(folders: list[Path]) -> str:
     rows: dict[tuple[str, str], dict] = {}
     for folder in folders:
         config = json.loads((folder / "exp_config.json").read_text())
-        key = (str(config.get("network")), str(config.get("alg") or config.get("algorithm")))
+        run = str(config.get("alg") or config.get("algorithm"))  # with its --set items: another run
+        key = (str(config.get("network")), " ".join([run, *(f"--set {o}" for o in overrides_of(config))]))
         row = rows.setdefault(key, {"seeds": 0, "wall": 0.0, "human": None})
         row["seeds"] += 1
         row["wall"] = max(row["wall"], float(config.get("wall_time_s") or 0.0))
