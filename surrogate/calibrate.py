@@ -165,9 +165,8 @@ def route_bias(params: Params, static: Static, sample: SumoSample, prior_days: f
     the metrics count), so a route that gets its drivers stuck looks as costly as it is scored;
     otherwise only arrivals count (the smooth model's fit never sees removals)."""
     pred = predict_bucketed(without_bias(params), static, sample.choices, sample.shift)  # [D, N], D grows
-    drove = sample.arrived
-    if removed:  # a removed vehicle has a finite charged time; a driver at home has NaN
-        drove = drove | (np.isfinite(sample.travel_time) & (sample.choices >= 0))
+    # a removed vehicle has a finite charged time, a driver at home NaN
+    drove = np.isfinite(sample.travel_time) & (sample.choices >= 0) if removed else sample.arrived
     res = np.where(drove, sample.travel_time - pred, 0.0)
     n, k = static.n, static.k
     sums = np.zeros((n, k))

@@ -18,7 +18,7 @@ from urb_jax.reporting.drift import ERROR_COLUMN, ROUNDS_FILE, TRUSTED, late_day
 from urb_jax.reporting.leaderboard import KEYS, aggregate, collect_folders
 from urb_jax.reporting.records import plot_phases, read_records
 from urb_jax.reporting.train_days import LEGEND, days_cell
-from urb_jax.reporting.urb_names import overrides_of
+from urb_jax.reporting.urb_names import overrides_of, with_overrides
 from urb_jax.reporting.verdicts import Sample, order, paired, welch
 
 TABLE_COLUMNS = [("t_pre", "t_pre"), ("t_CAV", "t_CAV"), ("t_HDV_test", "t_HDV"), ("t_test", "t_all"),
@@ -42,7 +42,7 @@ def runs_tables(runs: pd.DataFrame) -> str:
         names = [run_label(r) for _, r in g.iterrows()]
         for (_, r), name in zip(g.iterrows(), names, strict=True):
             if names.count(name) > 1:  # e.g. one algorithm with two configs or trainers: say which
-                name = f"{name} ({r['alg_config']}; {r['script']})"
+                name = qualified_label(r)
             days = days_cell(seeds[tuple(r[k] for k in KEYS)])
             cells = [name, str(int(r["runs"])), days, _num(r.get("WR"), 0)]
             for col, _ in TABLE_COLUMNS:
@@ -111,13 +111,8 @@ def _against(t_cav: list[float], seeds: pd.DataFrame, against: str, base: dict[s
         d = welch(Sample.of(t_cav), Sample.of(base[against]))
     else:
         return "not run"
-    kind = order(d).kind
-    if d.se == 0:
-        return f"**{kind}** {d.diff:+.4f} (no spread: by value)"
-    lo, hi = d.interval(0.95)
-    p = d.p_two()
-    p_text = "p < 0.001" if p < 0.001 else f"p = {p:.3f}"
-    return f"**{kind}** {d.diff:+.4f} [{lo:+.4f}, {hi:+.4f}], {p_text}"
+    verdict = order(d)
+    return f"**{verdict.kind}** {verdict.detail}"
 
 
 def _mean_sd(values: list[float]) -> str:
@@ -132,7 +127,7 @@ def wall_times_table(folders: list[Path]) -> str:
     for folder in folders:
         config = json.loads((folder / "exp_config.json").read_text())
         run = str(config.get("alg") or config.get("algorithm"))  # with its --set items: another run
-        key = (str(config.get("network")), " ".join([run, *(f"--set {o}" for o in overrides_of(config))]))
+        key = (str(config.get("network")), with_overrides(run, overrides_of(config)))
         row = rows.setdefault(key, {"seeds": 0, "wall": 0.0, "human": None})
         row["seeds"] += 1
         row["wall"] = max(row["wall"], float(config.get("wall_time_s") or 0.0))
@@ -157,13 +152,18 @@ def run_labels(runs: pd.DataFrame) -> dict[tuple, str]:
     names = {key: run_label(r) for key, r in groups.items()}
     counts = Counter((r["network"], r["task_config"], names[k]) for k, r in groups.items())
     ambiguous = {name for (_, _, name), n in counts.items() if n > 1}
-    return {key: f"{name} ({r['alg_config']}; {r['script']})" if (name := names[key]) in ambiguous else name
-            for key, r in groups.items()}
+    return {key: qualified_label(r) if names[key] in ambiguous else names[key] for key, r in groups.items()}
 
 
 def run_label(row: pd.Series) -> str:
     """A suite's row name: urb-jax's id (--alg, baseline_<model>); URB's name for URB's own runs."""
     return str(row.get("alg") or row["algorithm"])
+
+
+def qualified_label(row: pd.Series) -> str:
+    """`run_label` with the algorithm config and command (its `--set` items): where one name stands
+    for two runs."""
+    return f"{run_label(row)} ({row['alg_config']}; {row['script']})"
 
 
 def _num(x: float | None, digits: int = 4) -> str:

@@ -200,14 +200,15 @@ def direction(d: Difference, op: str) -> Verdict:
 
 def order(d: Difference) -> Verdict:
     """Left against right with no claim behind it: "lower" or "higher" where a two-sided test at 5%
-    says so, else TIE (the difference is inside the seed spread); the 95% interval beside it."""
+    says so, else TIE (the difference is inside the seed spread). The detail is a table cell's: the
+    difference, its 95% interval and the two-sided p."""
     if d.se == 0:
         kind = "lower" if d.diff < 0 else "higher" if d.diff > 0 else TIE
-        return Verdict(kind, f"difference {_num(d.diff)}; no spread: by value")
+        return Verdict(kind, f"{_num(d.diff)} (no spread: by value)")
     p = d.p_two()
     lo, hi = d.interval(0.95)
     kind = ("lower" if d.diff < 0 else "higher") if p < ALPHA else TIE
-    return Verdict(kind, f"difference {_num(d.diff)}, 95% CI [{_num(lo)}, {_num(hi)}], two-sided {_p(p)}")
+    return Verdict(kind, f"{_num(d.diff)} [{_num(lo)}, {_num(hi)}], {_p(p)}")
 
 
 def equivalence(d: Difference, margin: float) -> Verdict:
